@@ -1,0 +1,2 @@
+//! `prism`: simulate, inspect and reconstruct sparse-view spectral CT scenes.
+fn main() {}

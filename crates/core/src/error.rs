@@ -1,0 +1,100 @@
+//! One error type for the domain. Every variant names where the problem is (a file, a field, or
+//! both) so a user can fix their input without reading code.
+
+use std::path::PathBuf;
+
+/// Result alias used throughout `prism-core`.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// Reading or writing a file failed.
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A value in a file (or in a configuration) is missing, malformed or out of range.
+    /// `field` is a dotted path such as `geometry.detector.pitch_u`.
+    #[error("{}: field `{field}`: {message}", file.display())]
+    Field {
+        file: PathBuf,
+        field: String,
+        message: String,
+    },
+    /// A value is out of range where no file is involved (a programmatic call).
+    #[error("`{field}`: {message}")]
+    Invalid { field: String, message: String },
+}
+
+impl Error {
+    /// An invalid-value error for `field`.
+    pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Error::Invalid {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+
+    /// A file-level error for `field` of `file`.
+    pub fn field(
+        file: impl Into<PathBuf>,
+        field: impl Into<String>,
+        message: impl Into<String>,
+    ) -> Self {
+        Error::Field {
+            file: file.into(),
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+
+    /// An I/O error on `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    /// Attach a file to an error raised without one (e.g. a validation error found while loading
+    /// a file); other variants are returned unchanged.
+    pub fn in_file(self, file: impl Into<PathBuf>) -> Self {
+        match self {
+            Error::Invalid { field, message } => Error::Field {
+                file: file.into(),
+                field,
+                message,
+            },
+            other => other,
+        }
+    }
+
+    /// Prefix the field path (e.g. `geometry` + `dso` → `geometry.dso`).
+    pub fn under(self, prefix: &str) -> Self {
+        let join = |f: String| {
+            if f.is_empty() {
+                prefix.to_string()
+            } else {
+                format!("{prefix}.{f}")
+            }
+        };
+        match self {
+            Error::Invalid { field, message } => Error::Invalid {
+                field: join(field),
+                message,
+            },
+            Error::Field {
+                file,
+                field,
+                message,
+            } => Error::Field {
+                file,
+                field: join(field),
+                message,
+            },
+            other => other,
+        }
+    }
+}

@@ -1,0 +1,11 @@
+//! Prism's domain crate: scan geometry, spectral scenes and their file formats, X-ray physics,
+//! phantoms, classic reconstructions, the Gaussian model and trainers, metrics.
+//!
+//! Conventions (axes, units, detector orientation) are written once in `docs/geometry.md` and
+//! implemented once in [`geometry`].
+
+pub mod error;
+pub mod geometry;
+pub mod physics;
+
+pub use error::{Error, Result};
