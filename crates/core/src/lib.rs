@@ -4,8 +4,10 @@
 //! Conventions (axes, units, detector orientation) are written once in `docs/geometry.md` and
 //! implemented once in [`geometry`].
 
+pub mod classic;
 pub mod error;
 pub mod geometry;
+pub mod metrics;
 pub mod physics;
 
 pub use error::{Error, Result};
