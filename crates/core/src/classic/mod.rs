@@ -25,3 +25,6 @@ pub use sart::{Order, SartOptions, sart};
 
 #[cfg(test)]
 pub(crate) mod testutil;
+
+#[cfg(test)]
+mod iterative_tests;
