@@ -6,6 +6,7 @@
 
 pub mod error;
 pub mod geometry;
+pub mod phantom;
 pub mod physics;
 
 pub use error::{Error, Result};
