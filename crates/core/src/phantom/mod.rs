@@ -1,6 +1,11 @@
-//! Phantoms: analytic ellipsoid phantoms with material fractions, and material volumes from
-//! clinical CT in Hounsfield units.
+//! Phantoms: analytic ellipsoid phantoms with material fractions ([`SpectralPhantom`], built-in
+//! table in [`SpectralPhantom::builtin`]), and material volumes from clinical CT in Hounsfield
+//! units ([`hu`]).
 
+mod builtin;
 pub mod ellipsoid;
+pub mod spectral;
 
+pub use builtin::{BUILTIN_CALCIUM_MG_ML, BUILTIN_IODINE_MG_ML};
 pub use ellipsoid::Ellipsoid;
+pub use spectral::{Component, MaterialVolumes, SpectralPhantom, iodine_fraction};
