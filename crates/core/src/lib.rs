@@ -7,5 +7,6 @@
 pub mod error;
 pub mod geometry;
 pub mod physics;
+pub mod scene;
 
 pub use error::{Error, Result};
