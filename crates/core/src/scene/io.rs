@@ -400,14 +400,17 @@ fn check_array_shape(
         && found.len() == expected.len()
         && (0..found.len()).all(|i| i == k || found[i] == expected[i])
     {
+        let holder = if file == yaml {
+            format!("{field} in {}", yaml.display())
+        } else {
+            file.display().to_string()
+        };
         return Err(Error::field(
             yaml,
             "geometry.angles_rad",
             format!(
-                "lists {} angles but {} holds {} views",
-                expected[k],
-                file.display(),
-                found[k]
+                "lists {} angles but {holder} has {} views",
+                expected[k], found[k]
             ),
         ));
     }

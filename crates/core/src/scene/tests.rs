@@ -380,6 +380,15 @@ fn geometry_errors_name_the_file_and_field() {
     assert_names(&err, "scene.yaml", "`geometry.angles_rad`");
     assert!(err.contains("4 angles") && err.contains("5 views"), "{err}");
     let err = load_error(|d| {
+        write_npy(
+            d.join("projections.npy"),
+            &Array4::<f32>::zeros((3, 4, 6, 8)),
+        )
+        .unwrap()
+    });
+    assert_names(&err, "scene.yaml", "`geometry.angles_rad`");
+    assert!(err.contains("projections.npy has 4 views"), "{err}");
+    let err = load_error(|d| {
         edit_yaml(d, |v| {
             v["channels"][2]["coordinate"]["kvp"] = 90.0.into();
         })
