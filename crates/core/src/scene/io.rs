@@ -162,6 +162,7 @@ impl Scene {
         if !dir.exists() {
             fs::rename(tmp.path(), dir).map_err(|e| Error::io(dir, e))?;
             let _ = tmp.keep();
+            sync_dir(&parent);
             return Ok(());
         }
         // Move the old scene aside under a name unique to this save, put the new one in, then
@@ -181,6 +182,7 @@ impl Scene {
             return Err(e);
         }
         let _ = tmp.keep();
+        sync_dir(&parent);
         fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))
     }
 
@@ -217,7 +219,14 @@ impl Scene {
         let path = dir.join(SCENE_FILE);
         let text = serde_yaml_ng::to_string(&file)
             .map_err(|e| Error::invalid(SCENE_FILE, e.to_string()))?;
-        fs::write(&path, text).map_err(|e| Error::io(&path, e))
+        let write = || -> std::io::Result<()> {
+            let mut f = fs::File::create(&path)?;
+            std::io::Write::write_all(&mut f, text.as_bytes())?;
+            f.sync_all()
+        };
+        write().map_err(|e| Error::io(&path, e))?;
+        sync_dir(dir);
+        Ok(())
     }
 
     /// Read and validate the scene in directory `dir`. Errors name the file and the field.
@@ -320,11 +329,24 @@ fn yaml_error(file: &Path, e: &serde_yaml_ng::Error) -> Error {
     }
 }
 
+/// Write an array and flush it to disk (so that the rename that publishes it is durable).
 fn write_npy<A: WriteNpyExt + ?Sized>(path: &Path, array: &A) -> Result<()> {
     let f = fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let mut w = BufWriter::new(f);
     array
-        .write_npy(BufWriter::new(f))
-        .map_err(|e| Error::field(path, "data", format!("writing the array failed: {e}")))
+        .write_npy(&mut w)
+        .map_err(|e| Error::field(path, "data", format!("writing the array failed: {e}")))?;
+    let f = w
+        .into_inner()
+        .map_err(|e| Error::io(path, e.into_error()))?;
+    f.sync_all().map_err(|e| Error::io(path, e))
+}
+
+/// Flush a directory's entries (best effort: not every platform can open a directory).
+fn sync_dir(dir: &Path) {
+    if let Ok(d) = fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
 }
 
 /// A `.npy` file named by `entry` inside `dir`, checked to be a bare file name.

@@ -292,6 +292,13 @@ fn saving_over_a_scene_replaces_it_and_failures_keep_the_old_one() {
     assert!(!dir.join("references.npy").exists());
     assert_eq!(entries(tmp.path()), vec!["scene"]);
 
+    // A target whose parent cannot be created (it is a file) fails cleanly.
+    let blocker = tmp.path().join("file.txt");
+    fs::write(&blocker, b"x").unwrap();
+    assert!(new.save(blocker.join("scene")).is_err());
+    assert_eq!(fs::read(&blocker).unwrap(), b"x");
+    fs::remove_file(&blocker).unwrap();
+
     // A directory that is not a scene is never replaced.
     let other = tmp.path().join("photos");
     fs::create_dir(&other).unwrap();
