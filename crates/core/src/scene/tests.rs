@@ -136,6 +136,12 @@ fn coordinate_values_and_units() {
         serde_yaml_ng::from_str::<SpectralCoordinate>(&yaml).unwrap(),
         m
     );
+    let typo = serde_yaml_ng::from_str::<SpectralCoordinate>("{kind: energy, kev: 70, kvp: 80}");
+    assert!(
+        typo.unwrap_err()
+            .to_string()
+            .contains("unknown field `kvp`")
+    );
     let err = SpectralCoordinate::Window {
         lo_kev: 40.0,
         hi_kev: 33.0,
