@@ -8,5 +8,6 @@ pub mod error;
 pub mod geometry;
 pub mod phantom;
 pub mod physics;
+pub mod scene;
 
 pub use error::{Error, Result};
