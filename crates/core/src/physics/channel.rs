@@ -315,7 +315,7 @@ fn linear_combination(coef: &[f64; N_MATERIALS], inputs: &Inputs) -> Vec<f32> {
 /// Stable form: with a* = min_E a_E, p = a* − ln(Σ_E S_E·exp(−(a_E − a*)) / Σ_E S_E). Every
 /// exponent is ≤ 0 (no overflow) and the term at a* is S_E > 0 (no underflow to 0), so p is
 /// finite for any finite input; zero thickness gives a ≡ 0 and the ratio of two identical sums,
-/// hence exactly 0.
+/// hence exactly 0 (returned directly, without the sum, for rays that meet no material).
 fn polychromatic(weights: &[f64], rows: &[(&[f64], &[f32])]) -> Vec<f32> {
     let n = rows[0].1.len();
     let n_e = weights.len();
@@ -329,6 +329,11 @@ fn polychromatic(weights: &[f64], rows: &[(&[f64], &[f32])]) -> Vec<f32> {
             let mut a = vec![0.0f64; n_e];
             for (t, o) in chunk.iter_mut().enumerate() {
                 let k = base + t;
+                // A ray that meets no material (common: air around the object) is exactly 0.
+                if rows.iter().all(|(_, l)| l[k] == 0.0) {
+                    *o = 0.0;
+                    continue;
+                }
                 a.fill(0.0);
                 for (mu, l) in rows {
                     let l = l[k] as f64;

@@ -76,13 +76,30 @@ const TUBE_TABLES: [(u32, Filtration, &str); 12] = {
     ]
 };
 
-/// Relative photon fluence per energy bin.
+/// Relative photon fluence per energy bin. Deserialising validates and normalises like
+/// [`Spectrum::new`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RawSpectrum")]
 pub struct Spectrum {
     /// Bin centres, keV, strictly increasing.
     pub energies_kev: Vec<f64>,
     /// Relative photon fluence of each bin, ≥ 0, summing to 1.
     pub weights: Vec<f64>,
+}
+
+/// The serialised form of a [`Spectrum`], before validation.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSpectrum {
+    energies_kev: Vec<f64>,
+    weights: Vec<f64>,
+}
+
+impl TryFrom<RawSpectrum> for Spectrum {
+    type Error = Error;
+    fn try_from(raw: RawSpectrum) -> Result<Spectrum> {
+        Spectrum::new(raw.energies_kev, raw.weights)
+    }
 }
 
 impl Spectrum {
@@ -359,6 +376,16 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(msg.contains("energies_kev"), "{msg}");
+    }
+
+    #[test]
+    fn deserialising_validates_and_normalises() {
+        let s: Spectrum =
+            serde_yaml_ng::from_str("{energies_kev: [30, 40], weights: [1, 3]}").unwrap();
+        assert_eq!(s.weights, vec![0.25, 0.75]);
+        assert!((s.mean_energy() - 37.5).abs() < 1e-12);
+        let bad = serde_yaml_ng::from_str::<Spectrum>("{energies_kev: [30], weights: [-1]}");
+        assert!(bad.unwrap_err().to_string().contains("weights"));
     }
 
     #[test]
