@@ -13,14 +13,19 @@
 //! | `polychromatic` | −ln Σ_E S(E)·exp(−Σ_m μ_m(E)·L_m) | Σ_m μ̄_m·f_m |
 //! | `window` | as `polychromatic` with S restricted to [lo, hi] | Σ_m μ̄_m·f_m |
 //!
+//! Sums over E run over the spectrum's 1 keV bins evaluated at their centres, except that a bin
+//! straddling an absorption edge is split at the edge, so that no node averages across the
+//! step ([`ChannelSpec::spectrum`] returns these nodes).
+//!
 //! The **effective coefficient** of a spectrum is the fluence-weighted mean
 //! `μ̄_m = Σ_E S(E)·μ_m(E)` (S sums to 1): it is the slope of the polychromatic projection at zero
 //! thickness, so the reference volume is what the scan "sees" for thin objects. The detector
 //! counts photons (each detected photon weighs 1, as in a photon-counting bin); an
 //! energy-integrating detector would weigh them by E, which this model does not do.
 
+use super::Material;
+use super::attenuation::{ABSORPTION_EDGES, check_energy};
 use super::spectrum::{Filtration, Spectrum, tube_for_field};
-use super::{Material, attenuation::check_energy};
 use crate::{Error, Result};
 use ndarray::{Array3, CowArray, Ix3};
 use rayon::prelude::*;
@@ -81,16 +86,26 @@ fn mu_table(energies: &[f64]) -> Result<[Vec<f64>; N_MATERIALS]> {
     Ok(table)
 }
 
-/// Fluence-weighted effective coefficients μ̄_m = Σ_E S(E)·μ_m(E) of a spectrum, mm⁻¹.
-fn effective(spectrum: &Spectrum) -> Result<[f64; N_MATERIALS]> {
-    let mu = mu_table(&spectrum.energies_kev)?;
+/// Quadrature nodes of a spectrum restricted to [lo, hi]: the bins at their centres, clipped to
+/// the window, and with every bin that straddles an absorption edge (iodine K, 33.17 keV, inside
+/// the 33–34 keV bin) split at the edge into two pieces at their own midpoints (fluence taken as
+/// uniform within a bin). Without the split the whole bin would see the above-edge μ. Only
+/// positive weights remain (the stable log-sum needs them).
+fn quadrature(spectrum: &Spectrum, lo_kev: f64, hi_kev: f64) -> Result<Spectrum> {
+    let cuts: Vec<f64> = ABSORPTION_EDGES.iter().map(|&(_, _, k)| k).collect();
+    spectrum.window_split(lo_kev, hi_kev, &cuts)
+}
+
+/// A whole tube spectrum's quadrature nodes (a window wider than any spectrum).
+fn full_quadrature(spectrum: &Spectrum) -> Result<Spectrum> {
+    quadrature(spectrum, 0.0, f64::MAX)
+}
+
+/// Fluence-weighted effective coefficients μ̄_m = Σ_E S(E)·μ_m(E) over quadrature nodes, mm⁻¹.
+fn effective(nodes: &Spectrum) -> Result<[f64; N_MATERIALS]> {
+    let mu = mu_table(&nodes.energies_kev)?;
     Ok(std::array::from_fn(|m| {
-        spectrum
-            .weights
-            .iter()
-            .zip(&mu[m])
-            .map(|(w, u)| w * u)
-            .sum()
+        nodes.weights.iter().zip(&mu[m]).map(|(w, u)| w * u).sum()
     }))
 }
 
@@ -123,21 +138,21 @@ impl ChannelSpec {
         }
     }
 
-    /// The spectrum of a polychromatic or window channel (`None` for mono and mixed).
+    /// The spectrum a polychromatic or window channel integrates over, as quadrature nodes
+    /// (window applied, bins split at absorption edges; see the module doc); `None` for mono and
+    /// mixed. Errors name `kvp`, `lo_kev`, `hi_kev`.
     pub fn spectrum(&self) -> Result<Option<Spectrum>> {
         match *self {
             ChannelSpec::Mono { .. } | ChannelSpec::Mixed { .. } => Ok(None),
             ChannelSpec::Polychromatic { kvp, filtration } => {
-                tube_for_field(kvp, filtration, "kvp").map(Some)
+                full_quadrature(&tube_for_field(kvp, filtration, "kvp")?).map(Some)
             }
             ChannelSpec::Window {
                 lo_kev,
                 hi_kev,
                 kvp,
                 filtration,
-            } => tube_for_field(kvp, filtration, "kvp")?
-                .window(lo_kev, hi_kev)
-                .map(Some),
+            } => quadrature(&tube_for_field(kvp, filtration, "kvp")?, lo_kev, hi_kev).map(Some),
         }
     }
 
@@ -176,21 +191,20 @@ impl ChannelSpec {
                         format!("{lambda} must lie in [0, 1]"),
                     ));
                 }
-                let low = effective(&tube_for_field(low_kvp, filtration, "low_kvp")?)?;
-                let high = effective(&tube_for_field(high_kvp, filtration, "high_kvp")?)?;
+                let low = tube_for_field(low_kvp, filtration, "low_kvp")?;
+                let high = tube_for_field(high_kvp, filtration, "high_kvp")?;
+                let low = effective(&full_quadrature(&low)?)?;
+                let high = effective(&full_quadrature(&high)?)?;
                 let coef = std::array::from_fn(|m| lambda * low[m] + (1.0 - lambda) * high[m]);
                 Ok(Compiled::Linear { coef })
             }
             ChannelSpec::Polychromatic { .. } | ChannelSpec::Window { .. } => {
-                let spectrum = self.spectrum()?.expect("spectral channel has a spectrum");
-                let effective = effective(&spectrum)?;
-                // Zero-weight bins carry no photons; dropping them keeps the log-sum stable.
-                let (energies, weights): (Vec<f64>, Vec<f64>) = spectrum
-                    .energies_kev
-                    .iter()
-                    .zip(&spectrum.weights)
-                    .filter(|(_, w)| **w > 0.0)
-                    .unzip();
+                let nodes = self.spectrum()?.expect("spectral channel has a spectrum");
+                let effective = effective(&nodes)?;
+                let Spectrum {
+                    energies_kev: energies,
+                    weights,
+                } = nodes;
                 Ok(Compiled::Spectral {
                     mu: Box::new(mu_table(&energies)?),
                     weights,

@@ -182,6 +182,13 @@ impl Spectrum {
     /// overlapping fraction of its weight, centred on the overlap. A window holding no photons is
     /// an error naming `lo_kev`/`hi_kev`.
     pub fn window(&self, lo_kev: f64, hi_kev: f64) -> Result<Spectrum> {
+        self.window_split(lo_kev, hi_kev, &[])
+    }
+
+    /// [`Spectrum::window`] with bins also split at the energies `cuts` (each piece keeps its
+    /// share of the bin's fluence, at its own midpoint). The result lists quadrature nodes:
+    /// its implied bin edges no longer match the original bins.
+    pub(crate) fn window_split(&self, lo_kev: f64, hi_kev: f64, cuts: &[f64]) -> Result<Spectrum> {
         if !lo_kev.is_finite() || lo_kev < 0.0 {
             return Err(Error::invalid(
                 "lo_kev",
@@ -198,17 +205,25 @@ impl Spectrum {
         let (mut energies, mut weights) = (Vec::new(), Vec::new());
         for (i, &w) in self.weights.iter().enumerate() {
             let (a, b) = (edges[i], edges[i + 1]);
+            if b <= a {
+                // A zero-width bin (single-bin spectrum) is in or out as a whole.
+                if w > 0.0 && (lo_kev..=hi_kev).contains(&a) {
+                    energies.push(a);
+                    weights.push(w);
+                }
+                continue;
+            }
             let (lo, hi) = (a.max(lo_kev), b.min(hi_kev));
-            let kept = if b > a {
-                w * ((hi - lo) / (b - a)).max(0.0)
-            } else if (lo_kev..=hi_kev).contains(&a) {
-                w
-            } else {
-                0.0
-            };
-            if kept > 0.0 {
-                energies.push(if b > a { 0.5 * (lo + hi) } else { a });
-                weights.push(kept);
+            if w <= 0.0 || hi <= lo {
+                continue;
+            }
+            let mut bounds = vec![lo];
+            bounds.extend(cuts.iter().copied().filter(|&c| c > lo && c < hi));
+            bounds.push(hi);
+            bounds.sort_by(f64::total_cmp);
+            for piece in bounds.windows(2) {
+                energies.push(0.5 * (piece[0] + piece[1]));
+                weights.push(w * (piece[1] - piece[0]) / (b - a));
             }
         }
         if weights.is_empty() {

@@ -16,6 +16,24 @@ fn poly(kvp: u32) -> ChannelSpec {
     }
 }
 
+/// Quadrature nodes (keV, weight) of a 2.5 mm Al tube spectrum, built by hand: 1 keV bin centres,
+/// except the 33–34 keV bin, whose fluence splits at the iodine K-edge (33.1694 keV) in
+/// proportion to width, each piece at its midpoint.
+fn tube_nodes(kvp: u32) -> Vec<(f64, f64)> {
+    let s = Spectrum::tube(kvp, Filtration::Al2_5).unwrap();
+    let k = 33.1694;
+    let mut nodes = Vec::new();
+    for (&e, &w) in s.energies_kev.iter().zip(&s.weights) {
+        if e == 33.5 {
+            nodes.push((0.5 * (33.0 + k), w * (k - 33.0)));
+            nodes.push((0.5 * (k + 34.0), w * (34.0 - k)));
+        } else {
+            nodes.push((e, w));
+        }
+    }
+    nodes
+}
+
 /// A single-pixel projection of `mm` of water.
 fn water_p(spec: &ChannelSpec, mm: f32) -> f64 {
     let l = Array3::from_elem((1, 1, 1), mm);
@@ -178,11 +196,9 @@ fn mixed_blends_kvp_effective_coefficients() {
     };
     // μ̄ computed independently from the spectrum and the table.
     let mu_bar = |kvp| {
-        let s = Spectrum::tube(kvp, Filtration::Al2_5).unwrap();
-        s.energies_kev
+        tube_nodes(kvp)
             .iter()
-            .zip(&s.weights)
-            .map(|(&e, w)| w * Material::Iodine.mu(e).unwrap())
+            .map(|&(e, w)| w * Material::Iodine.mu(e).unwrap())
             .sum::<f64>()
     };
     let (lo, hi) = (mu_bar(80), mu_bar(140));
@@ -236,12 +252,9 @@ fn polychromatic_water_hardens() {
             assert!(mu_eff < prev_mu_eff && mu_eff < mu_bar, "{kvp} kVp, {l} mm");
             prev_mu_eff = mu_eff;
             // Independent naive evaluation of −ln Σ S e^(−μL) (safe at these thicknesses).
-            let s = Spectrum::tube(kvp, Filtration::Al2_5).unwrap();
-            let naive = -s
-                .energies_kev
+            let naive = -tube_nodes(kvp)
                 .iter()
-                .zip(&s.weights)
-                .map(|(&e, w)| w * (-Material::Water.mu(e).unwrap() * l as f64).exp())
+                .map(|&(e, w)| w * (-Material::Water.mu(e).unwrap() * l as f64).exp())
                 .sum::<f64>()
                 .ln();
             assert!(rel(p1, naive) < 1e-6, "{kvp} kVp, {l} mm: {p1} vs {naive}");
@@ -299,6 +312,29 @@ fn narrow_window_approaches_mono_at_its_centre() {
     assert!(errs[3] < 1e-3, "{errs:?}");
     // Inside one 1 keV bin the window is one sub-bin at its centre: mono up to f32 rounding.
     assert!(err(60.4, 0.05) < 1e-6);
+}
+
+#[test]
+fn bins_straddling_the_k_edge_are_split_at_the_edge() {
+    // A window holding exactly the 33–34 keV bin: 16.94 % of its photons lie below the edge.
+    let spec = ChannelSpec::Window {
+        lo_kev: 33.0,
+        hi_kev: 34.0,
+        kvp: 80,
+        filtration: Filtration::Al2_5,
+    };
+    let i = Material::Iodine;
+    let k = 33.1694;
+    let want =
+        (k - 33.0) * i.mu(0.5 * (33.0 + k)).unwrap() + (34.0 - k) * i.mu(0.5 * (k + 34.0)).unwrap();
+    assert!(rel(spec.effective_mu(i).unwrap(), want) < 1e-12);
+    // Beer–Lambert on the two sub-bins, for 0.2 mm of iodine.
+    let p = spec
+        .project(&[(i, Array3::from_elem((1, 1, 1), 0.2f32))])
+        .unwrap()[[0, 0, 0]] as f64;
+    let below = (k - 33.0) * (-0.2 * i.mu(0.5 * (33.0 + k)).unwrap()).exp();
+    let above = (34.0 - k) * (-0.2 * i.mu(0.5 * (k + 34.0)).unwrap()).exp();
+    assert!(rel(p, -(below + above).ln()) < 1e-6);
 }
 
 #[test]
