@@ -256,16 +256,15 @@ impl Compiled {
 /// Flat standard-layout slices of the inputs.
 type Inputs<'a> = Vec<(Material, &'a [f32])>;
 
-/// The inputs in standard layout (borrowed when they already are), validated: non-empty, one
-/// shape, finite.
-#[allow(clippy::type_complexity)]
-fn gather<'a>(
-    arrays: &'a [(Material, Array3<f32>)],
-    field: &str,
-) -> Result<(
+/// Shape and standard-layout inputs.
+type Gathered<'a> = (
     (usize, usize, usize),
     Vec<(Material, CowArray<'a, f32, Ix3>)>,
-)> {
+);
+
+/// The inputs in standard layout (borrowed when they already are), validated: non-empty, one
+/// shape, finite.
+fn gather<'a>(arrays: &'a [(Material, Array3<f32>)], field: &str) -> Result<Gathered<'a>> {
     let Some((_, first)) = arrays.first() else {
         return Err(Error::invalid(field, "at least one material is needed"));
     };
