@@ -4,10 +4,13 @@
 //! Conventions (axes, units, detector orientation) are written once in `docs/geometry.md` and
 //! implemented once in [`geometry`].
 
+pub mod classic;
 pub mod error;
 pub mod geometry;
+pub mod metrics;
 pub mod phantom;
 pub mod physics;
 pub mod scene;
+pub mod simulate;
 
 pub use error::{Error, Result};

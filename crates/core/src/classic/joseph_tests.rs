@@ -1,0 +1,109 @@
+use super::*;
+use crate::classic::testutil::{analytic_projections, geometry, phantom, random, rel_l2, voxelise};
+use crate::geometry::Beam;
+use ndarray::Axis;
+
+#[test]
+fn adjoint_identity_cone_and_parallel_with_offsets() {
+    // ⟨A x, y⟩ = ⟨x, Aᵀ y⟩ exactly in real arithmetic; f32 accumulation of O(10⁶) terms leaves
+    // ≲ 1e-6 relative, well inside the 1e-5 acceptance bound.
+    for beam in [Beam::Cone, Beam::Parallel] {
+        let mut g = geometry(beam, 24, 32, 7, true);
+        g.volume.dy = 0.8; // anisotropic voxels too
+        g.angles_rad = vec![0.1, 0.9, 1.7, 2.4, 3.3, 4.4, 5.9];
+        let a = Joseph::new(&g).unwrap();
+        let x = random(g.volume.shape_zyx(), 1);
+        let y = random(a.projection_shape(a.views()), 2);
+        let ax = a.forward(x.view()).unwrap();
+        let aty = a.adjoint(y.view()).unwrap();
+        let (lhs, rhs) = (dot(ax.view(), y.view()), dot(x.view(), aty.view()));
+        let rel = (lhs - rhs).abs() / lhs.abs();
+        assert!(rel <= 1e-5, "{beam:?}: {lhs} vs {rhs} ({rel:e})");
+        // Subsets of views are the same operator restricted.
+        let sub = [5usize, 2];
+        let axs = a.forward_views(x.view(), &sub).unwrap();
+        for (k, &v) in sub.iter().enumerate() {
+            assert_eq!(axs.index_axis(Axis(0), k), ax.index_axis(Axis(0), v));
+        }
+    }
+}
+
+#[test]
+fn central_ray_through_a_uniform_cube_is_its_width() {
+    // With an odd detector and no offsets the middle pixel's ray is the central ray: at θ = 0 it
+    // runs along −x through the middle of the cube, 16 voxels of 1 mm and value 1 → 16 mm.
+    for beam in [Beam::Cone, Beam::Parallel] {
+        let mut g = geometry(beam, 16, 33, 1, false);
+        g.angles_rad = vec![0.0];
+        let a = Joseph::new(&g).unwrap();
+        let ones = Array3::<f32>::ones(g.volume.shape_zyx());
+        let p = a.forward(ones.view()).unwrap();
+        assert!(
+            (p[[0, 16, 16]] - 16.0).abs() < 1e-4,
+            "{beam:?} {}",
+            p[[0, 16, 16]]
+        );
+    }
+}
+
+#[test]
+fn forward_projection_converges_to_analytic_projections() {
+    // Voxelising + trilinear sampling is first-order accurate at the ellipsoid boundaries, so the
+    // relative error must shrink roughly in proportion to the voxel size (measured 4.9 % at 24³,
+    // 2.4 % at 48³: halving the voxel halves the error).
+    let mut errs = Vec::new();
+    for n in [24usize, 48] {
+        let mut g = geometry(Beam::Cone, n, 48, 6, true);
+        g.volume.dx = 32.0 / n as f64;
+        g.volume.dy = g.volume.dx;
+        g.volume.dz = g.volume.dx;
+        g.detector.pitch_u = 48.0 / 48.0;
+        g.detector.pitch_v = 0.9;
+        g.dso = 200.0;
+        g.dsd = 300.0;
+        let objs = phantom(16.0);
+        let a = Joseph::new(&g).unwrap();
+        let vol = voxelise(&g.volume, &objs, 4);
+        let fp = a.forward(vol.view()).unwrap();
+        let truth = analytic_projections(&g, &objs);
+        errs.push(rel_l2(&fp, &truth));
+    }
+    eprintln!("fp vs analytic: {errs:?}");
+    assert!(errs[1] < 0.6 * errs[0] && errs[1] < 0.03, "{errs:?}");
+}
+
+#[test]
+fn bad_inputs_are_errors() {
+    let g = geometry(Beam::Cone, 8, 8, 3, false);
+    let a = Joseph::new(&g).unwrap();
+    let wrong = Array3::<f32>::zeros((8, 8, 9));
+    assert!(
+        a.forward(wrong.view())
+            .unwrap_err()
+            .to_string()
+            .contains("volume")
+    );
+    let vol = Array3::<f32>::zeros((8, 8, 8));
+    assert!(
+        a.forward_views(vol.view(), &[])
+            .unwrap_err()
+            .to_string()
+            .contains("empty")
+    );
+    assert!(a.forward_views(vol.view(), &[3]).is_err());
+    let p = Array3::<f32>::zeros((2, 8, 8));
+    assert!(
+        a.adjoint(p.view())
+            .unwrap_err()
+            .to_string()
+            .contains("projections")
+    );
+    let mut bad = g.clone();
+    bad.angles_rad.clear();
+    assert!(
+        Joseph::new(&bad)
+            .unwrap_err()
+            .to_string()
+            .contains("angles_rad")
+    );
+}
