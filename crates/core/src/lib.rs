@@ -8,6 +8,9 @@ pub mod classic;
 pub mod error;
 pub mod geometry;
 pub mod metrics;
+pub mod phantom;
 pub mod physics;
+pub mod scene;
+pub mod simulate;
 
 pub use error::{Error, Result};

@@ -44,6 +44,21 @@ impl Material {
         }
     }
 
+    /// Nominal density of the pure material, g/cm³ (the values of the embedded NIST table:
+    /// water 1, dry air at 20 °C, ICRU-44 tissues, elemental solids).
+    pub fn density(self) -> f64 {
+        match self {
+            Material::Water => 1.0,
+            Material::Air => 0.001205,
+            Material::SoftTissue => 1.06,
+            Material::CorticalBone => 1.92,
+            Material::Adipose => 0.95,
+            Material::Iodine => 4.93,
+            Material::Calcium => 1.55,
+            Material::Aluminium => 2.699,
+        }
+    }
+
     /// Parse a snake-case name; the error lists the known names.
     pub fn from_name(name: &str) -> Result<Material> {
         Material::ALL
@@ -56,5 +71,32 @@ impl Material {
                     format!("unknown material `{name}` (known: {})", known.join(", ")),
                 )
             })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_and_unknown_name_names_the_field() {
+        for m in Material::ALL {
+            assert_eq!(Material::from_name(m.name()).unwrap(), m);
+            let yaml = serde_yaml_ng::to_string(&m).unwrap();
+            assert_eq!(yaml.trim(), m.name());
+        }
+        let msg = Material::from_name("bone").unwrap_err().to_string();
+        assert!(
+            msg.contains("`material`") && msg.contains("cortical_bone"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn all_is_in_declaration_order() {
+        // The attenuation table is indexed by `m as usize`.
+        for (i, m) in Material::ALL.iter().enumerate() {
+            assert_eq!(*m as usize, i);
+        }
     }
 }
