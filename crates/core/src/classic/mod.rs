@@ -8,11 +8,13 @@
 //! thread.
 
 pub mod backproject;
+pub mod bench;
 pub mod cgls;
 pub mod fdk;
 pub mod filter;
 pub mod fov;
 pub mod joseph;
+pub mod recon;
 pub mod sart;
 
 pub use backproject::backproject_voxel;

@@ -1,0 +1,330 @@
+//! Classic-CT benchmark on the built-in spectral phantom, with RTK measured in the same run.
+//!
+//! Setup (the reference's §2.3 geometry scaled to the paper's system): cone beam, DSO 1000 mm,
+//! DSD 1500 mm, `det²` detector over 512 mm, `n³` grid over 256 mm, `views` over a full turn; the
+//! object is [`SpectralPhantom::builtin`] (radius 110 mm) at 70 keV: the reference volume is its
+//! supersampled material fractions times μ(70 keV), the analytic projections its exact material
+//! path lengths times μ. PSNRs divide volumes by the reference's maximum (peak 1).
+//!
+//! Measured, in one process: Joseph forward projection (time, relative L2 error vs the analytic
+//! projections), its exact adjoint (time, dot-product test), the voxel-driven FDK backprojector,
+//! FDK at `views` and at `full_views`, SART and CGLS (time, PSNR), optionally the forward-projection
+//! error at 256³, and the SART > CGLS > FDK ordering on the `phantom-3mono` configuration
+//! (64³, 96², 50 views, 40/70/100 keV, default iterations). Then `bench/rtk_classic.py` runs RTK's
+//! Joseph projector and FDK on the same volume and projections (skipped with a message when RTK is
+//! not importable). Timings are the best of `repeats` runs.
+
+use super::recon::{Method, ReconConfig, reconstruct_channel};
+use super::{Joseph, SartOptions, Window, backproject_voxel, cgls, fdk, sart};
+use crate::geometry::{Beam, Detector, Geometry, VolumeGrid};
+use crate::metrics::psnr;
+use crate::phantom::SpectralPhantom;
+use crate::physics::ChannelSpec;
+use crate::{Error, Result};
+use ndarray::Array3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde_json::{Value, json};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Benchmark parameters; [`Default`] is the acceptance setup (128³, 256², 50 views).
+#[derive(Clone, Debug)]
+pub struct BenchOptions {
+    pub n: usize,
+    pub det: usize,
+    pub views: usize,
+    /// Views of the dense FDK run (0 skips it).
+    pub full_views: usize,
+    pub sart_epochs: usize,
+    pub cgls_iterations: usize,
+    /// Also measure the forward-projection error at 256³ (256² detector).
+    pub fp_256: bool,
+    /// Run the SART > CGLS > FDK ordering check on phantom-3mono.
+    pub ordering: bool,
+    /// Python interpreter for the RTK script (`None` skips RTK).
+    pub python: Option<String>,
+    /// RTK threads.
+    pub rtk_threads: usize,
+    /// Timed runs per operation (best is reported).
+    pub repeats: usize,
+}
+
+impl Default for BenchOptions {
+    fn default() -> Self {
+        BenchOptions {
+            n: 128,
+            det: 256,
+            views: 50,
+            full_views: 360,
+            sart_epochs: 3,
+            cgls_iterations: 10,
+            fp_256: true,
+            ordering: true,
+            python: Some(std::env::var("PRISM_PYTHON").unwrap_or_else(|_| "python3".into())),
+            rtk_threads: 2,
+            repeats: 2,
+        }
+    }
+}
+
+/// The benchmark geometry: `n³` over 256 mm, `det²` over 512 mm, `views` over a full turn.
+pub fn bench_geometry(n: usize, det: usize, views: usize) -> Geometry {
+    Geometry {
+        beam: Beam::Cone,
+        dso: 1000.0,
+        dsd: 1500.0,
+        detector: Detector {
+            rows: det,
+            cols: det,
+            pitch_u: 512.0 / det as f64,
+            pitch_v: 512.0 / det as f64,
+            offset_u: 0.0,
+            offset_v: 0.0,
+        },
+        volume: VolumeGrid::cube(n, 256.0 / n as f64),
+        angles_rad: Geometry::full_turn(views),
+    }
+}
+
+/// Reference volume (μ, mm⁻¹) and analytic projections of the built-in phantom in `channel`.
+pub fn phantom_data(
+    geometry: &Geometry,
+    channel: &ChannelSpec,
+) -> Result<(Array3<f32>, Array3<f32>)> {
+    let ph = SpectralPhantom::builtin(110.0)?;
+    let fractions = ph.fractions(&geometry.volume, 3)?;
+    let paths = ph.material_paths(geometry)?;
+    Ok((channel.volume(&fractions)?, channel.project(&paths)?))
+}
+
+fn best<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
+    let mut best = f64::INFINITY;
+    let mut out = None;
+    for _ in 0..repeats.max(1) {
+        let t = Instant::now();
+        let r = f()?;
+        best = best.min(t.elapsed().as_secs_f64());
+        out = Some(r);
+    }
+    Ok((out.expect("at least one run"), best))
+}
+
+fn rel_l2(a: &Array3<f32>, b: &Array3<f32>) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
+    let den: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
+    (num / den).sqrt()
+}
+
+/// PSNR after dividing both volumes by the reference's maximum.
+fn norm_psnr(pred: &Array3<f32>, truth: &Array3<f32>) -> Result<f64> {
+    let peak = truth.fold(0.0f32, |a, &b| a.max(b));
+    if peak <= 0.0 {
+        return Err(Error::invalid("reference", "has no positive value"));
+    }
+    psnr(
+        pred.mapv(|x| x / peak).view(),
+        truth.mapv(|x| x / peak).view(),
+        1.0,
+    )
+}
+
+fn log(msg: &str) {
+    eprintln!("bench classic: {msg}");
+}
+
+/// Run the benchmark; returns the JSON object (also suitable for printing).
+pub fn run(opts: &BenchOptions) -> Result<Value> {
+    let mono70 = ChannelSpec::Mono { kev: 70.0 };
+    let g = bench_geometry(opts.n, opts.det, opts.views);
+    log(&format!(
+        "{}³ volume, {}² detector, {} views: voxelising the phantom",
+        opts.n, opts.det, opts.views
+    ));
+    let (truth, analytic) = phantom_data(&g, &mono70)?;
+    let a = Joseph::new(&g)?;
+    let r = opts.repeats;
+
+    log("Joseph forward projection");
+    let (fp, fp_s) = best(r, || a.forward(truth.view()))?;
+    let fp_err = rel_l2(&fp, &analytic);
+    log("exact adjoint");
+    let (_, bp_s) = best(r, || a.adjoint(analytic.view()))?;
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let x = Array3::from_shape_simple_fn(g.volume.shape_zyx(), || rng.random_range(-1.0f32..1.0));
+    let y = Array3::from_shape_simple_fn(a.projection_shape(g.views()), || {
+        rng.random_range(-1.0f32..1.0)
+    });
+    let lhs = super::joseph::dot(a.forward(x.view())?.view(), y.view());
+    let rhs = super::joseph::dot(x.view(), a.adjoint(y.view())?.view());
+    let adjoint_rel_err = (lhs - rhs).abs() / lhs.abs();
+    log("voxel-driven FDK backprojection");
+    let views: Vec<usize> = (0..g.views()).collect();
+    let ones = vec![1.0; g.views()];
+    let (_, voxel_bp_s) = best(r, || backproject_voxel(&g, analytic.view(), &views, &ones))?;
+    log("FDK");
+    let (rec, fdk_s) = best(r, || fdk(&g, analytic.view(), Window::RamLak))?;
+    let fdk_psnr = norm_psnr(&rec, &truth)?;
+
+    let mut out = json!({
+        "setup": {
+            "volume": opts.n, "detector": opts.det, "views": opts.views,
+            "dso_mm": g.dso, "dsd_mm": g.dsd, "voxel_mm": g.volume.dx, "pitch_mm": g.detector.pitch_u,
+            "object": "SpectralPhantom::builtin(110 mm) at 70 keV",
+            "threads": rayon::current_num_threads(), "timing": format!("best of {}", r.max(1)),
+        },
+        "adjoint_rel_err": adjoint_rel_err,
+        "fp_rel_err_vs_analytic": fp_err,
+        "fp_s": fp_s,
+        "fp_mrays_per_s": (g.views() * g.detector.rows * g.detector.cols) as f64 / fp_s / 1e6,
+        "bp_s": bp_s,
+        "voxel_bp_s": voxel_bp_s,
+        "voxel_bp_gups": (g.volume.len() * g.views()) as f64 / voxel_bp_s / 1e9,
+        "fdk_s": fdk_s,
+        "fdk_psnr": fdk_psnr,
+    });
+
+    if opts.full_views > 0 {
+        log(&format!("FDK at {} views", opts.full_views));
+        let gf = bench_geometry(opts.n, opts.det, opts.full_views);
+        let (_, proj) = phantom_data(&gf, &mono70)?;
+        let rec = fdk(&gf, proj.view(), Window::RamLak)?;
+        out["fdk_full_views"] = json!(opts.full_views);
+        out["fdk_full_psnr"] = json!(norm_psnr(&rec, &truth)?);
+    }
+    if opts.sart_epochs > 0 {
+        log(&format!("SART, {} epochs", opts.sart_epochs));
+        let so = SartOptions {
+            iterations: opts.sart_epochs,
+            ..SartOptions::default()
+        };
+        let t = Instant::now();
+        let rec = sart(&a, analytic.view(), None, &so, &mut |_| {})?;
+        out["sart_epochs"] = json!(opts.sart_epochs);
+        out["sart_s"] = json!(t.elapsed().as_secs_f64());
+        out["sart_psnr"] = json!(norm_psnr(&rec, &truth)?);
+    }
+    if opts.cgls_iterations > 0 {
+        log(&format!("CGLS, {} iterations", opts.cgls_iterations));
+        let t = Instant::now();
+        let rec = cgls(&a, analytic.view(), None, opts.cgls_iterations, &mut |_| {})?;
+        out["cgls_iterations"] = json!(opts.cgls_iterations);
+        out["cgls_s"] = json!(t.elapsed().as_secs_f64());
+        out["cgls_psnr"] = json!(norm_psnr(&rec, &truth)?);
+    }
+    if opts.fp_256 {
+        log("forward-projection error at 256³ / 256²");
+        let g2 = bench_geometry(256, 256, opts.views);
+        let (t2, p2) = phantom_data(&g2, &mono70)?;
+        let fp2 = Joseph::new(&g2)?.forward(t2.view())?;
+        out["fp_rel_err_vs_analytic_256"] = json!(rel_l2(&fp2, &p2));
+    }
+    if opts.ordering {
+        out["ordering"] = ordering()?;
+    }
+    let rtk = match &opts.python {
+        Some(py) => run_rtk(py, opts.rtk_threads, &g, &truth, &analytic)?,
+        None => json!({"available": false, "reason": "RTK comparison disabled"}),
+    };
+    if rtk["available"] == json!(true) {
+        let ratio = |k: &str| {
+            rtk[k]
+                .as_f64()
+                .map(|v| v / out[k].as_f64().unwrap_or(f64::NAN))
+        };
+        out["ratios"] = json!({
+            "fp_speedup_vs_rtk": ratio("fp_s"),
+            "fdk_speedup_vs_rtk": ratio("fdk_s"),
+            "fp_err_ours_over_rtk": fp_err / rtk["fp_rel_err_vs_analytic"].as_f64().unwrap_or(f64::NAN),
+            "fdk_psnr_ours_minus_rtk": fdk_psnr - rtk["fdk_psnr"].as_f64().unwrap_or(f64::NAN),
+        });
+    } else if let Some(reason) = rtk["reason"].as_str() {
+        log(&format!("RTK skipped: {reason}"));
+    }
+    out["rtk"] = rtk;
+    Ok(out)
+}
+
+/// Mean PSNR over 40/70/100 keV of FDK, SART and CGLS (recon defaults) on phantom-3mono.
+fn ordering() -> Result<Value> {
+    log("ordering on phantom-3mono (64³, 96², 50 views, 40/70/100 keV)");
+    let mut g = bench_geometry(64, 96, 50);
+    g.detector.pitch_u = 512.0 / 96.0;
+    g.detector.pitch_v = 512.0 / 96.0;
+    let views: Vec<usize> = (0..g.views()).collect();
+    let mut means = serde_json::Map::new();
+    let data: Vec<_> = [40.0, 70.0, 100.0]
+        .iter()
+        .map(|&kev| phantom_data(&g, &ChannelSpec::Mono { kev }))
+        .collect::<Result<_>>()?;
+    for method in [Method::Fdk, Method::Sart, Method::Cgls] {
+        let cfg = ReconConfig::new(method);
+        let t = Instant::now();
+        let mut sum = 0.0;
+        for (truth, proj) in &data {
+            let rec = reconstruct_channel(&cfg, &g, proj.view(), &views, &mut |_| {})?;
+            sum += norm_psnr(&rec, truth)?;
+        }
+        means.insert(
+            method.name().into(),
+            json!({"mean_psnr": sum / data.len() as f64, "iterations": cfg.resolved_iterations(), "s": t.elapsed().as_secs_f64()}),
+        );
+    }
+    let p = |m: &str| means[m]["mean_psnr"].as_f64().unwrap_or(f64::NAN);
+    let holds = p("sart") > p("cgls") && p("cgls") > p("fdk");
+    means.insert("sart_gt_cgls_gt_fdk".into(), json!(holds));
+    Ok(Value::Object(means))
+}
+
+/// Path of the RTK script in a source checkout.
+pub fn rtk_script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../bench/rtk_classic.py")
+}
+
+fn run_rtk(
+    python: &str,
+    threads: usize,
+    g: &Geometry,
+    truth: &Array3<f32>,
+    analytic: &Array3<f32>,
+) -> Result<Value> {
+    let script = rtk_script();
+    if !script.exists() {
+        return Ok(
+            json!({"available": false, "reason": format!("{} not found", script.display())}),
+        );
+    }
+    let dir = tempfile::tempdir().map_err(|e| Error::io(std::env::temp_dir(), e))?;
+    let w = |name: &str, a: &Array3<f32>| -> Result<()> {
+        let p = dir.path().join(name);
+        ndarray_npy::write_npy(&p, a).map_err(|e| Error::field(&p, "data", e.to_string()))
+    };
+    w("volume.npy", truth)?;
+    w("analytic.npy", analytic)?;
+    let gp = dir.path().join("geometry.json");
+    std::fs::write(
+        &gp,
+        serde_json::to_string(g).map_err(|e| Error::field(&gp, ".", e.to_string()))?,
+    )
+    .map_err(|e| Error::io(&gp, e))?;
+    log(&format!("RTK via {python} {}", script.display()));
+    let output = match std::process::Command::new(python)
+        .arg(&script)
+        .arg(dir.path())
+        .arg(threads.to_string())
+        .output()
+    {
+        Ok(o) => o,
+        Err(e) => {
+            return Ok(json!({"available": false, "reason": format!("cannot run {python}: {e}")}));
+        }
+    };
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    match serde_json::from_str::<Value>(stdout.trim()) {
+        Ok(v) if output.status.success() => Ok(v),
+        _ => Ok(json!({
+            "available": false,
+            "reason": format!("RTK script failed ({}): {}", output.status, String::from_utf8_lossy(&output.stderr).trim()),
+        })),
+    }
+}
