@@ -1,6 +1,7 @@
 //! Classic-CT benchmark (see `prism_core::classic::bench`): prints one JSON object.
 //!
-//! `cargo run --release -p prism-core --example bench_classic [-- --quick] [--no-rtk]`
+//! `cargo run --release -p prism-core --example bench_classic [-- --quick] [--no-rtk]
+//! [--no-ordering] [--no-256] [--ordering-only]`
 //! The RTK side runs with `$PRISM_PYTHON` (default `python3`) when `itk-rtk` is importable.
 
 use prism_core::classic::bench::{BenchOptions, run};
@@ -24,8 +25,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "--no-rtk" => opts.python = None,
             "--no-ordering" => opts.ordering = false,
             "--no-256" => opts.fp_256 = false,
+            "--ordering-only" => {
+                println!("{}", serde_json::to_string_pretty(&prism_core::classic::bench::ordering()?)?);
+                return Ok(());
+            }
             other => return Err(format!(
-                "unknown argument `{other}` (expected --quick, --no-rtk, --no-ordering, --no-256)"
+                "unknown argument `{other}` (expected --quick, --no-rtk, --no-ordering, --no-256, --ordering-only)"
             )
             .into()),
         }

@@ -100,12 +100,13 @@ fn accumulate_line(
         } else {
             (fx * c[0] + cx, fy * c[1] + cy, 1.0f32)
         };
-        let (qu, qv) = (u.floor(), v.floor());
-        let (iu, iv) = (qu as i64, qv as i64);
-        if iu < -1 || iu >= cols || iv < -1 || iv >= rows {
+        // Outside the detector's bilinear footprint (also rejects NaN).
+        if !(u > -1.0 && u < cols as f64 && v > -1.0 && v < rows as f64) {
             continue;
         }
-        let (fu, fv) = ((u - qu) as f32, (v - qv) as f32);
+        // floor() without a libm call: u, v > −1 here, so truncation of u + 1 is floor(u) + 1.
+        let (iu, iv) = ((u + 1.0) as i64 - 1, (v + 1.0) as i64 - 1);
+        let (fu, fv) = ((u - iu as f64) as f32, (v - iv as f64) as f32);
         let val = if iu >= 0 && iu + 1 < cols && iv >= 0 && iv + 1 < rows {
             let b = (iv * cols + iu) as usize;
             let c = cols as usize;

@@ -246,7 +246,7 @@ pub fn run(opts: &BenchOptions) -> Result<Value> {
 }
 
 /// Mean PSNR over 40/70/100 keV of FDK, SART and CGLS (recon defaults) on phantom-3mono.
-fn ordering() -> Result<Value> {
+pub fn ordering() -> Result<Value> {
     log("ordering on phantom-3mono (64³, 96², 50 views, 40/70/100 keV)");
     let mut g = bench_geometry(64, 96, 50);
     g.detector.pitch_u = 512.0 / 96.0;

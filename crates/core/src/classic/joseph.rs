@@ -271,32 +271,69 @@ impl Joseph {
     }
 }
 
+/// `q` with `q ≤ x ≤ q + 1` for |x| < 2²², without a rounding instruction or a saturating cast
+/// (both are slow on baseline x86-64 and block vectorisation): adding 1.5·2²³ rounds `x − ½` to
+/// the nearest integer, which lands in the low mantissa bits. At exact integers the tie may round
+/// down, giving `x − q = 1`, which bilinear interpolation handles like 0 at `q + 1`.
+#[inline(always)]
+fn floorish(x: f32) -> i32 {
+    const MAGIC: f32 = 12_582_912.0;
+    ((x - 0.5) + MAGIC).to_bits() as i32 - MAGIC.to_bits() as i32
+}
+
 /// Visit every sample of `walk` on a grid of `dims = [nx, ny, nz]`.
 #[inline(always)]
 fn run<V: Visit>(walk: &RayWalk, dims: [usize; 3], v: &mut V) {
+    /// Samples per batch: positions of a batch are computed first (a loop the compiler
+    /// vectorises), then the batch is visited.
+    const BATCH: usize = 64;
     let stride = [1usize, dims[0], dims[0] * dims[1]];
     let (sk, s1, s2) = (stride[walk.k], stride[walk.j[0]], stride[walk.j[1]]);
-    let (n1, n2) = (dims[walk.j[0]] as i64, dims[walk.j[1]] as i64);
-    for i in walk.lo..=walk.hi {
-        let m = (i - walk.lo) as f64;
-        let p1 = walk.p0[0] + m * walk.dp[0];
-        let p2 = walk.p0[1] + m * walk.dp[1];
-        let (q1, q2) = (p1.floor(), p2.floor());
-        let (f1, f2) = ((p1 - q1) as f32, (p2 - q2) as f32);
-        let (i1, i2) = (q1 as i64, q2 as i64);
-        let plane = i as usize * sk;
-        if i1 >= 0 && i1 + 1 < n1 && i2 >= 0 && i2 + 1 < n2 {
-            v.quad(plane + i1 as usize * s1 + i2 as usize * s2, s1, s2, f1, f2);
-        } else {
-            for (d1, w1) in [(0i64, 1.0 - f1), (1, f1)] {
-                for (d2, w2) in [(0i64, 1.0 - f2), (1, f2)] {
-                    let (c1, c2) = (i1 + d1, i2 + d2);
-                    if c1 >= 0 && c1 < n1 && c2 >= 0 && c2 < n2 {
-                        v.one(plane + c1 as usize * s1 + c2 as usize * s2, w1 * w2);
+    let (n1, n2) = (dims[walk.j[0]] as i32, dims[walk.j[1]] as i32);
+    let (p01, p02) = (walk.p0[0] as f32, walk.p0[1] as f32);
+    let (dp1, dp2) = (walk.dp[0] as f32, walk.dp[1] as f32);
+    let len = (walk.hi - walk.lo + 1) as usize;
+    let (s1i, s2i) = (s1 as i32, s2 as i32);
+    // Unsigned compares: q ∈ [0, n − 2] ⇔ (q as u32) < n − 1 (negative q wraps to huge).
+    let (lim1, lim2) = ((n1 - 1) as u32, (n2 - 1) as u32);
+    let mut q1 = [0i32; BATCH];
+    let mut q2 = [0i32; BATCH];
+    let mut f1 = [0f32; BATCH];
+    let mut f2 = [0f32; BATCH];
+    let mut off = [0i32; BATCH];
+    let mut inside = [false; BATCH];
+    let mut start = 0;
+    while start < len {
+        let cnt = BATCH.min(len - start);
+        for t in 0..cnt {
+            let m = (start + t) as f32;
+            let (p1, p2) = (p01 + m * dp1, p02 + m * dp2);
+            let (a, b) = (floorish(p1), floorish(p2));
+            q1[t] = a;
+            q2[t] = b;
+            f1[t] = p1 - a as f32;
+            f2[t] = p2 - b as f32;
+            off[t] = a.wrapping_mul(s1i).wrapping_add(b.wrapping_mul(s2i));
+            inside[t] = ((a as u32) < lim1) & ((b as u32) < lim2);
+        }
+        let plane0 = (walk.lo as usize + start) * sk;
+        for t in 0..cnt {
+            let plane = plane0 + t * sk;
+            if inside[t] {
+                v.quad(plane + off[t] as usize, s1, s2, f1[t], f2[t]);
+            } else {
+                let (i1, i2, g1, g2) = (q1[t], q2[t], f1[t], f2[t]);
+                for (d1, w1) in [(0i32, 1.0 - g1), (1, g1)] {
+                    for (d2, w2) in [(0i32, 1.0 - g2), (1, g2)] {
+                        let (c1, c2) = (i1 + d1, i2 + d2);
+                        if c1 >= 0 && c1 < n1 && c2 >= 0 && c2 < n2 {
+                            v.one(plane + c1 as usize * s1 + c2 as usize * s2, w1 * w2);
+                        }
                     }
                 }
             }
         }
+        start += cnt;
     }
 }
 
@@ -308,9 +345,10 @@ struct Gather<'a> {
 impl Visit for Gather<'_> {
     #[inline(always)]
     fn quad(&mut self, base: usize, o1: usize, o2: usize, f1: f32, f2: f32) {
-        let v = self.vol;
-        let a = v[base] + f1 * (v[base + o1] - v[base]);
-        let b = v[base + o2] + f1 * (v[base + o1 + o2] - v[base + o2]);
+        // One bounds check for the whole 2×2 cell.
+        let v = &self.vol[base..=base + o1 + o2];
+        let a = v[0] + f1 * (v[o1] - v[0]);
+        let b = v[o2] + f1 * (v[o1 + o2] - v[o2]);
         self.sum += a + f2 * (b - a);
     }
     #[inline(always)]
@@ -328,11 +366,11 @@ impl Visit for Scatter<'_> {
     #[inline(always)]
     fn quad(&mut self, base: usize, o1: usize, o2: usize, f1: f32, f2: f32) {
         let (g1, g2) = (1.0 - f1, 1.0 - f2);
-        let a = &mut *self.acc;
-        a[base] += self.val * g1 * g2;
-        a[base + o1] += self.val * f1 * g2;
-        a[base + o2] += self.val * g1 * f2;
-        a[base + o1 + o2] += self.val * f1 * f2;
+        let a = &mut self.acc[base..=base + o1 + o2];
+        a[0] += self.val * g1 * g2;
+        a[o1] += self.val * f1 * g2;
+        a[o2] += self.val * g1 * f2;
+        a[o1 + o2] += self.val * f1 * f2;
     }
     #[inline(always)]
     fn one(&mut self, idx: usize, w: f32) {

@@ -260,6 +260,7 @@ fn file_stem(label: &str) -> String {
 /// written to `metrics.json`, or `None` when the scene has no references.
 pub fn run(config: &ReconConfig, scene: &Scene, out_dir: &Path) -> Result<Option<ReconReport>> {
     config.validate()?;
+    scene.validate()?;
     let unseen = check_fov(&scene.geometry).map_err(|e| e.under("geometry"))?;
     if unseen > 0.0 {
         eprintln!(
