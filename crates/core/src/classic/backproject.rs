@@ -10,6 +10,7 @@
 //! Parallel over z-slices; along x the camera coordinates are updated incrementally, so each
 //! update costs one reciprocal, a bilinear fetch and a multiply-add.
 
+use super::joseph::floorish;
 use crate::geometry::{Beam, Camera, Geometry, Projection};
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView2, ArrayView3, Axis};
@@ -70,7 +71,8 @@ pub fn backproject_voxel(
     Ok(out)
 }
 
-/// Accumulate one x-line of voxels from one view.
+/// Accumulate one x-line of voxels from one view. Batches of voxels are projected first (f32, a
+/// loop the compiler vectorises), then the detector is sampled.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn accumulate_line(
@@ -83,49 +85,70 @@ fn accumulate_line(
     dso: f64,
     scale: f32,
 ) {
-    let (rows, cols) = (cam.rows as i64, cam.cols as i64);
+    const BATCH: usize = 64;
+    let (rows, cols) = (cam.rows, cam.cols);
     let img = img.as_slice().expect("standard layout");
-    let (fx, fy, cx, cy) = (cam.fx, cam.fy, cam.cx, cam.cy);
+    let (fx, fy, cx, cy) = (cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32);
+    let p = p0.map(|x| x as f32);
+    let d = dx.map(|x| x as f32);
+    let dso = dso as f32;
+    let (colsf, rowsf) = (cols as f32, rows as f32);
+    let (lim_u, lim_v) = ((cols - 1) as u32, (rows - 1) as u32);
     debug_assert!(cone == (cam.projection == Projection::Cone));
-    for (ix, out) in line.iter_mut().enumerate() {
-        let t = ix as f64;
-        let c = [p0[0] + t * dx[0], p0[1] + t * dx[1], p0[2] + t * dx[2]];
-        let (u, v, w) = if cone {
-            if c[2] <= 0.0 {
+    let mut iu = [0i32; BATCH];
+    let mut iv = [0i32; BATCH];
+    let mut fu = [0f32; BATCH];
+    let mut fv = [0f32; BATCH];
+    let mut wt = [0f32; BATCH];
+    let mut valid = [false; BATCH];
+    let mut inside = [false; BATCH];
+    for (b, chunk) in line.chunks_mut(BATCH).enumerate() {
+        for t in 0..chunk.len() {
+            let x = (b * BATCH + t) as f32;
+            let c = [p[0] + x * d[0], p[1] + x * d[1], p[2] + x * d[2]];
+            let (u, v, w) = if cone {
+                let inv = 1.0 / c[2];
+                let uw = dso * inv;
+                (fx * c[0] * inv + cx, fy * c[1] * inv + cy, uw * uw)
+            } else {
+                (fx * c[0] + cx, fy * c[1] + cy, 1.0)
+            };
+            // In the detector's bilinear footprint and in front of the source (false for NaN).
+            let ok = (!cone || c[2] > 0.0) & (u > -1.0) & (u < colsf) & (v > -1.0) & (v < rowsf);
+            let (a, bq) = (floorish(u), floorish(v));
+            iu[t] = a;
+            iv[t] = bq;
+            fu[t] = u - a as f32;
+            fv[t] = v - bq as f32;
+            wt[t] = w;
+            valid[t] = ok;
+            inside[t] = ok & ((a as u32) < lim_u) & ((bq as u32) < lim_v);
+        }
+        for (t, out) in chunk.iter_mut().enumerate() {
+            if !valid[t] {
                 continue;
             }
-            let inv = 1.0 / c[2];
-            let uw = dso * inv;
-            (fx * c[0] * inv + cx, fy * c[1] * inv + cy, (uw * uw) as f32)
-        } else {
-            (fx * c[0] + cx, fy * c[1] + cy, 1.0f32)
-        };
-        // Outside the detector's bilinear footprint (also rejects NaN).
-        if !(u > -1.0 && u < cols as f64 && v > -1.0 && v < rows as f64) {
-            continue;
-        }
-        // floor() without a libm call: u, v > −1 here, so truncation of u + 1 is floor(u) + 1.
-        let (iu, iv) = ((u + 1.0) as i64 - 1, (v + 1.0) as i64 - 1);
-        let (fu, fv) = ((u - iu as f64) as f32, (v - iv as f64) as f32);
-        let val = if iu >= 0 && iu + 1 < cols && iv >= 0 && iv + 1 < rows {
-            let b = (iv * cols + iu) as usize;
-            let c = cols as usize;
-            let a0 = img[b] + fu * (img[b + 1] - img[b]);
-            let a1 = img[b + c] + fu * (img[b + c + 1] - img[b + c]);
-            a0 + fv * (a1 - a0)
-        } else {
-            let mut acc = 0.0f32;
-            for (dv, wv) in [(0i64, 1.0 - fv), (1, fv)] {
-                for (du, wu) in [(0i64, 1.0 - fu), (1, fu)] {
-                    let (ru, rv) = (iu + du, iv + dv);
-                    if ru >= 0 && ru < cols && rv >= 0 && rv < rows {
-                        acc += wu * wv * img[(rv * cols + ru) as usize];
+            let (gu, gv) = (fu[t], fv[t]);
+            let val = if inside[t] {
+                let base = iv[t] as usize * cols + iu[t] as usize;
+                let cell = &img[base..=base + cols + 1];
+                let a0 = cell[0] + gu * (cell[1] - cell[0]);
+                let a1 = cell[cols] + gu * (cell[cols + 1] - cell[cols]);
+                a0 + gv * (a1 - a0)
+            } else {
+                let mut acc = 0.0f32;
+                for (dv, wv) in [(0i32, 1.0 - gv), (1, gv)] {
+                    for (du, wu) in [(0i32, 1.0 - gu), (1, gu)] {
+                        let (ru, rv) = (iu[t] + du, iv[t] + dv);
+                        if ru >= 0 && (ru as usize) < cols && rv >= 0 && (rv as usize) < rows {
+                            acc += wu * wv * img[rv as usize * cols + ru as usize];
+                        }
                     }
                 }
-            }
-            acc
-        };
-        *out += scale * w * val;
+                acc
+            };
+            *out += scale * wt[t] * val;
+        }
     }
 }
 

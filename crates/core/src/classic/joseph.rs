@@ -276,7 +276,7 @@ impl Joseph {
 /// the nearest integer, which lands in the low mantissa bits. At exact integers the tie may round
 /// down, giving `x − q = 1`, which bilinear interpolation handles like 0 at `q + 1`.
 #[inline(always)]
-fn floorish(x: f32) -> i32 {
+pub(crate) fn floorish(x: f32) -> i32 {
     const MAGIC: f32 = 12_582_912.0;
     ((x - 0.5) + MAGIC).to_bits() as i32 - MAGIC.to_bits() as i32
 }
