@@ -12,7 +12,7 @@
 //! error at 256³, and the SART > CGLS > FDK ordering on the `phantom-3mono` configuration
 //! (64³, 96², 50 views, 40/70/100 keV, default iterations). Then `bench/rtk_classic.py` runs RTK's
 //! Joseph projector and FDK on the same volume and projections (skipped with a message when RTK is
-//! not importable). Timings are the best of `repeats` runs.
+//! not importable). Timings on both sides are the best of `repeats` runs.
 
 use super::recon::{Method, ReconConfig, reconstruct_channel};
 use super::{Joseph, SartOptions, Window, backproject_voxel, cgls, fdk, sart};
@@ -223,7 +223,7 @@ pub fn run(opts: &BenchOptions) -> Result<Value> {
         out["ordering"] = ordering()?;
     }
     let rtk = match &opts.python {
-        Some(py) => run_rtk(py, opts.rtk_threads, &g, &truth, &analytic)?,
+        Some(py) => run_rtk(py, opts.rtk_threads, r.max(1), &g, &truth, &analytic)?,
         None => json!({"available": false, "reason": "RTK comparison disabled"}),
     };
     if rtk["available"] == json!(true) {
@@ -284,6 +284,7 @@ pub fn rtk_script() -> PathBuf {
 fn run_rtk(
     python: &str,
     threads: usize,
+    repeats: usize,
     g: &Geometry,
     truth: &Array3<f32>,
     analytic: &Array3<f32>,
@@ -312,6 +313,7 @@ fn run_rtk(
         .arg(&script)
         .arg(dir.path())
         .arg(threads.to_string())
+        .arg(repeats.to_string())
         .output()
     {
         Ok(o) => o,
