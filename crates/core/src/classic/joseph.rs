@@ -35,6 +35,38 @@ trait Visit {
     fn one(&mut self, idx: usize, w: f32);
 }
 
+/// Inclusive voxel-index box `([x, y, z] lo, [x, y, z] hi)`.
+type Support = ([usize; 3], [usize; 3]);
+
+/// Bounding box of the non-zero voxels of a `[z][y][x]` volume with `dims = [nx, ny, nz]`, or
+/// `None` when every voxel is zero (empty-space skipping for the forward projector; exact, since
+/// skipped samples only touch zero voxels).
+fn support(vol: &[f32], dims: [usize; 3]) -> Option<Support> {
+    let [nx, ny, _] = dims;
+    vol.par_chunks(nx * ny)
+        .enumerate()
+        .filter_map(|(z, slice)| {
+            let mut b: Option<Support> = None;
+            for (y, line) in slice.chunks(nx).enumerate() {
+                let first = line.iter().position(|&v| v != 0.0);
+                if let Some(x0) = first {
+                    let x1 = line.iter().rposition(|&v| v != 0.0).unwrap_or(x0);
+                    b = Some(match b {
+                        None => ([x0, y, z], [x1, y, z]),
+                        Some((lo, hi)) => ([lo[0].min(x0), lo[1], z], [hi[0].max(x1), y, z]),
+                    });
+                }
+            }
+            b
+        })
+        .reduce_with(|a, b| {
+            (
+                [a.0[0].min(b.0[0]), a.0[1].min(b.0[1]), a.0[2].min(b.0[2])],
+                [a.1[0].max(b.1[0]), a.1[1].max(b.1[1]), a.1[2].max(b.1[2])],
+            )
+        })
+}
+
 /// Per-ray stepping data in index space, precomputed once per ray.
 struct RayWalk {
     /// Dominant axis (0 = x, 1 = y, 2 = z) and the two in-plane axes.
@@ -91,6 +123,9 @@ impl Joseph {
         let vol = vol.as_slice().expect("standard layout");
         let dims = [g.nx, g.ny, g.nz];
         let mut out = Array3::<f32>::zeros(self.projection_shape(views.len()));
+        let Some(support) = support(vol, dims) else {
+            return Ok(out); // an all-zero volume projects to zero
+        };
         let (rows, cols) = (self.geometry.detector.rows, self.geometry.detector.cols);
         out.as_slice_mut()
             .expect("fresh array")
@@ -101,7 +136,7 @@ impl Joseph {
                 let cam = &self.cameras[views[k]];
                 for (col, o) in out_row.iter_mut().enumerate() {
                     let mut acc = Gather { vol, sum: 0.0 };
-                    if let Some(walk) = self.walk(cam, col, row) {
+                    if let Some(walk) = self.walk(cam, col, row, &support) {
                         run(&walk, dims, &mut acc);
                         *o = acc.sum * walk.step;
                     }
@@ -140,6 +175,7 @@ impl Joseph {
         let proj = proj.as_slice().expect("standard layout");
         let (rows, cols) = (self.geometry.detector.rows, self.geometry.detector.cols);
         let lines = views.len() * rows;
+        let full: Support = ([0; 3], [g.nx - 1, g.ny - 1, g.nz - 1]);
         // One accumulator per worker over a contiguous run of detector lines.
         let workers = rayon::current_num_threads().clamp(1, lines.max(1));
         let per = lines.div_ceil(workers);
@@ -155,7 +191,7 @@ impl Joseph {
                         if val == 0.0 {
                             continue;
                         }
-                        if let Some(walk) = self.walk(cam, col, row) {
+                        if let Some(walk) = self.walk(cam, col, row, &full) {
                             let mut s = Scatter {
                                 acc: &mut acc,
                                 val: val * walk.step,
@@ -207,7 +243,9 @@ impl Joseph {
     }
 
     /// Set up the walk of the ray through pixel (col, row), or `None` when it misses the grid.
-    fn walk(&self, cam: &Camera, col: usize, row: usize) -> Option<RayWalk> {
+    /// `support` = inclusive voxel-index box `(lo, hi)` outside which the operand is zero (the
+    /// whole grid for the adjoint): samples whose footprint lies outside it are skipped.
+    fn walk(&self, cam: &Camera, col: usize, row: usize, support: &Support) -> Option<RayWalk> {
         let g = &self.geometry.volume;
         let ray = cam.pixel_ray(col as f64, row as f64);
         let a = g.world_to_index(ray.origin);
@@ -217,7 +255,6 @@ impl Joseph {
             ray.direction[1] / vs[1],
             ray.direction[2] / vs[2],
         ];
-        let n = [g.nx as f64, g.ny as f64, g.nz as f64];
         let k = (0..3)
             .max_by(|&p, &q| gd[p].abs().total_cmp(&gd[q].abs()))
             .expect("three axes");
@@ -244,16 +281,17 @@ impl Joseph {
                 t1 = t1.min(ta.max(tb));
             }
         };
-        clip(k, -0.5, n[k] - 0.5);
-        clip(j[0], -1.0, n[j[0]]);
-        clip(j[1], -1.0, n[j[1]]);
+        let (blo, bhi) = (support.0.map(|x| x as f64), support.1.map(|x| x as f64));
+        clip(k, blo[k] - 0.5, bhi[k] + 0.5);
+        clip(j[0], blo[j[0]] - 1.0, bhi[j[0]] + 1.0);
+        clip(j[1], blo[j[1]] - 1.0, bhi[j[1]] + 1.0);
         if t1 <= t0 {
             return None;
         }
         // Planes i (index along k) whose sample point lies in [t0, t1].
         let (ka, kb) = (a[k] + t0 * gd[k], a[k] + t1 * gd[k]);
-        let lo = ka.min(kb).ceil().max(0.0) as i64;
-        let hi = (ka.max(kb).floor() as i64).min(n[k] as i64 - 1);
+        let lo = ka.min(kb).ceil().max(blo[k]) as i64;
+        let hi = (ka.max(kb).floor() as i64).min(bhi[k] as i64);
         if lo > hi {
             return None;
         }
