@@ -34,7 +34,7 @@ pub enum SpectralCoordinate {
     TubeVoltage { kvp: f64 },
     /// A photon-counting energy bin `[lo_kev, hi_kev)`, keV.
     Window { lo_kev: f64, hi_kev: f64 },
-    /// A blend `(1 − λ)·low + λ·high` of two tube-voltage channels (kVp).
+    /// A blend `λ·low + (1 − λ)·high` of two tube-voltage channels (kVp), as in the paper.
     Mixing {
         lambda: f64,
         low_kvp: f64,
