@@ -82,16 +82,7 @@ impl SpectralCoordinate {
     /// Check the fields' own ranges (positive energies and voltages, ordered window edges).
     /// Errors name the field relative to the coordinate (`kev`, `hi_kev`…).
     pub fn validate(&self) -> Result<()> {
-        let positive = |field: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(Error::invalid(
-                    field,
-                    format!("must be positive and finite (got {v})"),
-                ))
-            }
-        };
+        use crate::error::ensure_positive as positive;
         match *self {
             SpectralCoordinate::Energy { kev } => positive("kev", kev),
             SpectralCoordinate::TubeVoltage { kvp } => positive("kvp", kvp),
@@ -115,12 +106,7 @@ impl SpectralCoordinate {
                 low_kvp,
                 high_kvp,
             } => {
-                if !lambda.is_finite() {
-                    return Err(Error::invalid(
-                        "lambda",
-                        format!("must be finite (got {lambda})"),
-                    ));
-                }
+                crate::error::ensure_finite("lambda", lambda)?;
                 positive("low_kvp", low_kvp)?;
                 positive("high_kvp", high_kvp)?;
                 if high_kvp <= low_kvp {
