@@ -30,7 +30,7 @@ fn main() {
         let model = config
             .init(&grid, &device, 0)
             .expect("default config is valid");
-        let mut step = || {
+        let step = || {
             let out = model.forward(u.clone(), tau.clone()).expect("shapes match");
             let _grads = out.powi_scalar(2).mean().backward();
         };

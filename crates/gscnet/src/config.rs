@@ -89,7 +89,7 @@ impl CurveModelConfig {
                 ),
             ));
         }
-        if self.conv_kernel == 0 || self.conv_kernel % 2 == 0 {
+        if self.conv_kernel == 0 || self.conv_kernel.is_multiple_of(2) {
             return Err(Error::invalid(
                 "conv_kernel",
                 format!(

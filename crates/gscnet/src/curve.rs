@@ -149,7 +149,7 @@ mod tests {
         }
         // Between τ_2 = 0.1 and τ_3 = 0.5: weights 0.75 / 0.25 at 0.2, checked by hand.
         let v = values(interpolate_curve(du.clone(), &grid, 0.2, Extrapolation::Refuse).unwrap());
-        let expect = [0.75 * 3.0 + 0.25 * -1.0, 0.75 * 0.25 + 0.25 * 2.0];
+        let expect = [0.75 * 3.0 - 0.25, 0.75 * 0.25 + 0.25 * 2.0];
         for (a, b) in v.iter().zip(expect) {
             assert!((a - b).abs() < 1e-6, "{a} vs {b}");
         }

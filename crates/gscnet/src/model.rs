@@ -11,6 +11,9 @@ use crate::mlp::CurveMlp;
 use crate::{Error, Result};
 
 /// The network inside a [`CurveModel`].
+// One model exists per reconstruction, so the variants' size difference (~1 KB of handles) is
+// irrelevant and boxing would complicate the derived `Module`.
+#[allow(clippy::large_enum_variant)]
 #[derive(Module, Debug)]
 pub enum CurveNet {
     Gscnet(GscNet),
@@ -278,7 +281,9 @@ mod tests {
             let grads = GradientsParams::from_grads(loss.backward(), &model);
             model = optim.step(1e-2, model, grads);
         }
-        (first.unwrap(), last)
+        let first = first.unwrap();
+        println!("{kind:?}: L2 loss {first:.3e} → {last:.3e} in 300 Adam steps");
+        (first, last)
     }
 
     #[test]

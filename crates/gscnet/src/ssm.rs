@@ -141,7 +141,7 @@ mod tests {
         let [x, delta, a_log, b, c, d] = inp;
         let mut y = vec![0.0; K * M * E];
         for i in 0..K {
-            let mut h = vec![0.0; E * N];
+            let mut h = [0.0; E * N];
             for m in 0..M {
                 for e in 0..E {
                     let xm = x[(i * M + m) * E + e];
