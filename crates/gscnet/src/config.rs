@@ -35,8 +35,9 @@ pub struct CurveModelConfig {
     /// Kernel size of the depthwise convolution over neighbouring channels; odd, centred, zero
     /// padded (default 3). GSC-Net only.
     pub conv_kernel: usize,
-    /// Scale s of the raw-density conditioning û = u / (s + |u|) ∈ (−1, 1) (default 4 mm⁻¹-raw
-    /// units: typical raw densities −8..4 map to −0.67..0.5, and |u| ~ 1e3 stays finite).
+    /// Scale s of the raw-density conditioning û = u / (s + |u|) ∈ (−1, 1), in the units of the
+    /// raw (pre-softplus) density (default 4: typical raw densities −8..4 map to −0.67..0.5, and
+    /// |u| ~ 1e3 still gives finite, bounded features).
     pub u_scale: f32,
     /// Range of the initial SSM step Δ (log-uniform per channel; defaults 0.01..1, shorter than
     /// Mamba's 0.001..0.1 because spectral sequences have only 2–16 tokens).
