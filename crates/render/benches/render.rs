@@ -11,7 +11,8 @@
 //! * the affine parallel-beam projection built from plain Burn tensor primitives (autodiff) vs the
 //!   custom op on a small case, as a time ratio.
 //!
-//! Run: `cargo bench -p prism-render --bench render` (env `ITERS` to change the iteration count).
+//! Run: `cargo bench -p prism-render --bench render` (env `ITERS` sets the iteration count,
+//! `BENCH_ONLY=affine,exact,voxelize,reference` a subset).
 
 use std::time::Instant;
 
@@ -275,6 +276,10 @@ fn burn_reference_parallel(g: &Gaussians, cam: &Camera) -> Tensor<2> {
     ((g.densities.clone() * mu) * power.exp()).sum_dim(0)
 }
 
+fn enabled(section: &str) -> bool {
+    std::env::var("BENCH_ONLY").map_or(true, |v| v.split(',').any(|s| s.trim() == section))
+}
+
 fn main() {
     let iters: usize = std::env::var("ITERS")
         .ok()
@@ -304,6 +309,9 @@ fn main() {
         ("affine", ProjectOptions::default()),
         ("exact", ProjectOptions::exact()),
     ] {
+        if !enabled(name) {
+            continue;
+        }
         let cams = [view(0.4, Projection::Cone, 256, 1.0)];
         let target = project(&g, &cams, None, &opts)
             .unwrap()
@@ -327,6 +335,16 @@ fn main() {
         );
     }
 
+    if enabled("voxelize") {
+        bench_voxelize(&g, iters);
+    }
+    if enabled("reference") {
+        bench_reference(&host, &ad, iters);
+    }
+}
+
+fn bench_voxelize(g: &Gaussians, iters: usize) {
+    let k = g.len();
     // 32³ TV patch (1 mm voxels) at a random place inside the volume, voxelize + backward.
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     let patches: Vec<VoxelGrid> = (0..iters + 1)
@@ -340,7 +358,7 @@ fn main() {
     let tv = time(iters, || {
         let grid = patches[i % patches.len()];
         i += 1;
-        let vol = voxelize(&g, &grid, &VoxelizeOptions::default()).unwrap();
+        let vol = voxelize(g, &grid, &VoxelizeOptions::default()).unwrap();
         let grads = vol.sum().backward();
         let mut acc = 0.0;
         for t in [&g.means, &g.scales, &g.rotations, &g.densities] {
@@ -355,14 +373,16 @@ fn main() {
         offset: [0.0; 3],
     };
     let vf = time(iters.min(3), || {
-        let _ = voxelize(&g, &full, &VoxelizeOptions::default())
+        let _ = voxelize(g, &full, &VoxelizeOptions::default())
             .unwrap()
             .detach()
             .sum()
             .into_scalar::<f32>();
     });
     println!("voxelize full 128³ forward, K = {k}: {vf:.1} ms");
+}
 
+fn bench_reference(host: &Host, ad: &Device, iters: usize) {
     // Custom op vs the same projector from Burn primitives (small: K = 256, 32² parallel view).
     let small = Host {
         means: host.means[..3 * 256].to_vec(),
@@ -370,7 +390,7 @@ fn main() {
         rotations: host.rotations[..4 * 256].to_vec(),
         densities: host.densities[..256].to_vec(),
     };
-    let gs = tensors(&small, &ad);
+    let gs = tensors(&small, ad);
     let cam = view(0.4, Projection::Parallel, 32, 4.5);
     let wide = ProjectOptions {
         cutoff: 1e3,

@@ -15,27 +15,29 @@ pub use voxelize::{VoxelizeGrads, voxelize_backward, voxelize_forward};
 
 use crate::gaussian_math::GaussianGeom;
 
-/// `exp(x)` for `x ≤ 0` in f32, branch-free so pixel rows vectorise: `2ⁿ · e^y` with
-/// `n = round(x / ln 2)`, `|y| ≤ ln2 / 2` and a degree-7 Taylor polynomial (truncation
-/// `< 1e-8`, total relative error a few f32 ulps). Arguments below −87 (and −∞) return
-/// `2^-126·e^y`-range values ≤ 1.2e-38 instead of denormals; NaN propagates.
+/// `exp(x)` for `x ≤ 0` in f32, branch-free and conversion-free so pixel rows vectorise:
+/// `2ⁿ · e^y` with `n = round(x / ln 2)`, `|y| ≤ ln2 / 2` and a degree-6 Taylor polynomial
+/// (truncation `|y|⁷/7! < 1.2e-7`). `n` is read from the bits of the rounding sum itself, so no
+/// float→int conversion is needed. Arguments below −87 (and −∞) are clamped to −87 (result
+/// ≈ 1.6e-38, where the value no longer matters); NaN propagates.
 #[inline(always)]
 pub fn exp_neg(x: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_145_75;
     const LN2_LO: f32 = 1.428_606_8e-6;
-    // Rounds to nearest without SSE4.1: adding 1.5·2²³ pushes the fraction out of the mantissa.
+    // Adding 1.5·2²³ rounds to the nearest integer (without SSE4.1) and leaves that integer in
+    // the low mantissa bits: t.to_bits() − MAGIC.to_bits() = n.
     const MAGIC: f32 = 12_582_912.0;
     let x = x.clamp(-87.0, 0.0);
-    let n = (x * LOG2E + MAGIC) - MAGIC;
+    let t = x * LOG2E + MAGIC;
+    let n = t - MAGIC;
+    let ni = (t.to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
     let y = (x - n * LN2_HI) - n * LN2_LO;
     let p = 1.0
         + y * (1.0
             + y * (0.5
-                + y * (1.0 / 6.0
-                    + y * (1.0 / 24.0
-                        + y * (1.0 / 120.0 + y * (1.0 / 720.0 + y * (1.0 / 5040.0)))))));
-    let scale = f32::from_bits(((n as i32 + 127) as u32) << 23);
+                + y * (1.0 / 6.0 + y * (1.0 / 24.0 + y * (1.0 / 120.0 + y * (1.0 / 720.0))))));
+    let scale = f32::from_bits(((ni + 127) as u32) << 23);
     p * scale
 }
 

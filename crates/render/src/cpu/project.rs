@@ -14,6 +14,18 @@ use crate::options::{ProjectOptions, ProjectionMode};
 /// Detector tile edge in pixels.
 pub const TILE: usize = 16;
 
+/// `[0, 1, …, TILE − 1]` as f32: pixel offsets within a row without int→float conversions
+/// (which would keep the row loops from vectorising).
+const IOTA: [f32; TILE] = {
+    let mut a = [0.0f32; TILE];
+    let mut i = 0;
+    while i < TILE {
+        a[i] = i as f32;
+        i += 1;
+    }
+    a
+};
+
 /// Gradients of a projection with respect to every input, row-major like the inputs.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ProjectGrads {
@@ -204,8 +216,9 @@ fn affine_rows(
         let dy = y as f32 - s.my;
         let gdy = s.gamma * dy * dy;
         let bdy = s.beta * dy;
-        for (j, ej) in e.iter_mut().enumerate() {
-            let d = dx0 + j as f32 + bdy;
+        // Fixed trip count (the whole tile row): unrolled vector code; only e[..n] is used.
+        for (ej, &j) in e.iter_mut().zip(&IOTA) {
+            let d = dx0 + j + bdy;
             let q = s.a * d * d + gdy;
             let v = super::exp_neg(-0.5 * q);
             *ej = if q <= cut2 { v } else { 0.0 };
@@ -383,6 +396,8 @@ pub fn project_backward(
                         .copy_from_slice(&gview[src..src + tw]);
                 }
             }
+            let mut lanes = vec![[0.0f32; TILE]; m];
+            let mut mom = [[0.0f32; TILE]; 5];
             for (j, &gi) in list.iter().enumerate() {
                 let gi = gi as usize;
                 let acc = &mut out[j * stride..(j + 1) * stride];
@@ -390,45 +405,41 @@ pub fn project_backward(
                 match &prep {
                     Prepared::Affine(splats, _) => {
                         let Some(s) = &splats[gi] else { continue };
-                        let mut sums = [0.0f32; 5];
-                        let mut sc = [0.0f32; 8];
-                        let mut sc_vec = vec![0.0f32; if m > 8 { m } else { 0 }];
-                        let sc: &mut [f32] = if m > 8 { &mut sc_vec } else { &mut sc[..m] };
-                        let mut wge = [0.0f32; TILE];
+                        // Per-lane (pixel column) partial sums, reduced once per pair, so the row
+                        // loops are element-wise and vectorise: [S_0..S_{M-1}, x, y, xx, xy, yy].
+                        lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
                         affine_rows(s, r, cut2 as f32, |p, x0, dy, e| {
-                            let k = e.len();
-                            // wge = Σ_c ρ_c g_c G per pixel; S_c += Σ g_c G.
-                            wge[..k].iter_mut().for_each(|v| *v = 0.0);
+                            let k = e.len().min(TILE);
+                            let mut wge = [0.0f32; TILE];
                             for c in 0..m {
                                 let gc = &gt[c * n + p..c * n + p + k];
                                 let rho = dens[c];
-                                let mut s_c = 0.0f32;
-                                for ((w, g), e) in wge[..k].iter_mut().zip(gc).zip(e) {
-                                    let ge = g * e;
-                                    s_c += ge;
-                                    *w += rho * ge;
+                                let lane = &mut lanes[c];
+                                for j in 0..k {
+                                    let ge = gc[j] * e[j];
+                                    lane[j] += ge;
+                                    wge[j] += rho * ge;
                                 }
-                                sc[c] += s_c;
                             }
                             let dx0 = x0 as f32 - s.mx;
-                            let (mut s0, mut s1, mut s2) = (0.0f32, 0.0f32, 0.0f32);
-                            for (j, w) in wge[..k].iter().enumerate() {
-                                let dx = dx0 + j as f32;
-                                s0 += w;
-                                s1 += w * dx;
-                                s2 += w * dx * dx;
+                            let [lx, ly, lxx, lxy, lyy] = &mut mom;
+                            for j in 0..k {
+                                let w = wge[j];
+                                let dx = dx0 + IOTA[j];
+                                let wx = w * dx;
+                                lx[j] += wx;
+                                ly[j] += w * dy;
+                                lxx[j] += wx * dx;
+                                lxy[j] += wx * dy;
+                                lyy[j] += w * dy * dy;
                             }
-                            sums[0] += s1;
-                            sums[1] += s0 * dy;
-                            sums[2] += s2;
-                            sums[3] += s1 * dy;
-                            sums[4] += s0 * dy * dy;
                         });
                         for c in 0..m {
-                            acc[c] = sc[c] as f64;
+                            acc[c] = lanes[c].iter().map(|&v| v as f64).sum();
                         }
                         for q in 0..5 {
-                            acc[m + q] = sums[q] as f64;
+                            acc[m + q] = mom[q].iter().map(|&v| v as f64).sum();
+                            mom[q] = [0.0; TILE];
                         }
                     }
                     Prepared::Exact(splats) => {

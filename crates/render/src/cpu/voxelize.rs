@@ -103,38 +103,69 @@ fn prepare(
         .unzip()
 }
 
-/// Visit the voxels of `s` inside the tile box within the cut-off: `f(local_index, d, G)` with
-/// `d = centre − mean` and `G = exp(−½ dᵀ Σ⁻¹ d)`; local index is `[z][y][x]` within the tile.
+/// Voxel-centre coordinates of one tile, per axis (f32, world units).
+struct TileCentres {
+    lo: [usize; 3],
+    hi: [usize; 3],
+    c: [[f32; TILE]; 3],
+}
+
+impl TileCentres {
+    fn new(grid: &VoxelGrid, tile: ([usize; 3], [usize; 3])) -> Self {
+        let mut c = [[0.0f32; TILE]; 3];
+        for a in 0..3 {
+            for (j, v) in c[a].iter_mut().enumerate() {
+                *v = grid.centre(a, tile.0[a] + j) as f32;
+            }
+        }
+        Self {
+            lo: tile.0,
+            hi: tile.1,
+            c,
+        }
+    }
+}
+
+/// Visit the x-rows of `s` inside the tile: `f(local_row_start, x0, [dy, dz], e)` where `e[j]`
+/// is `G = exp(−½ dᵀ Σ⁻¹ d)` at tile-local voxel `x0 + j` (0 beyond the cut-off),
+/// `d = centre − mean`, local indices `[z][y][x]` within the tile. Rows are evaluated
+/// branch-free over the whole tile width so they vectorise.
 #[inline(always)]
-fn voxels(
+fn voxel_rows(
     s: &VoxSplat,
-    grid: &VoxelGrid,
-    tile: &([usize; 3], [usize; 3]),
+    t: &TileCentres,
     cut2: f32,
-    mut f: impl FnMut(usize, [f32; 3], f32),
+    mut f: impl FnMut(usize, usize, [f32; 2], &[f32]),
 ) {
-    let (tlo, thi) = tile;
-    let lo = [0, 1, 2].map(|a| s.lo[a].max(tlo[a]));
-    let hi = [0, 1, 2].map(|a| s.hi[a].min(thi[a]));
-    let (tw, th) = (thi[0] - tlo[0], thi[1] - tlo[1]);
+    let lo = [0, 1, 2].map(|a| s.lo[a].max(t.lo[a]));
+    let hi = [0, 1, 2].map(|a| s.hi[a].min(t.hi[a]));
+    if lo[0] >= hi[0] {
+        return;
+    }
+    let (tw, th) = (t.hi[0] - t.lo[0], t.hi[1] - t.lo[1]);
     let [d0, l01, l02, d1, l12, d2] = s.q;
+    let mut dxs = [0.0f32; TILE];
+    for (d, c) in dxs.iter_mut().zip(&t.c[0]) {
+        *d = c - s.mean[0];
+    }
+    let (x0, n) = (lo[0] - t.lo[0], hi[0] - lo[0]);
+    let mut e = [0.0f32; TILE];
     for z in lo[2]..hi[2] {
-        let dz = (grid.centre(2, z) as f32) - s.mean[2];
+        let dz = t.c[2][z - t.lo[2]] - s.mean[2];
         let qz = d2 * dz * dz;
         for y in lo[1]..hi[1] {
-            let dy = (grid.centre(1, y) as f32) - s.mean[1];
+            let dy = t.c[1][y - t.lo[1]] - s.mean[1];
             let e1 = dy + l12 * dz;
             let qyz = d1 * e1 * e1 + qz;
             let cx = l01 * dy + l02 * dz;
-            let row = ((z - tlo[2]) * th + (y - tlo[1])) * tw;
-            for x in lo[0]..hi[0] {
-                let dx = (grid.centre(0, x) as f32) - s.mean[0];
+            for (ej, dx) in e.iter_mut().zip(&dxs) {
                 let e0 = dx + cx;
                 let q = d0 * e0 * e0 + qyz;
-                if q <= cut2 {
-                    f(row + x - tlo[0], [dx, dy, dz], super::exp_neg(-0.5 * q));
-                }
+                let v = super::exp_neg(-0.5 * q);
+                *ej = if q <= cut2 { v } else { 0.0 };
             }
+            let row = ((z - t.lo[2]) * th + (y - t.lo[1])) * tw;
+            f(row + x0, x0, [dy, dz], &e[x0..x0 + n]);
         }
     }
 }
@@ -156,22 +187,21 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
         .into_par_iter()
         .map(|t| {
             let tb = tg.tile_box(t);
+            let tc = TileCentres::new(grid, tb);
             let n: usize = (0..3).map(|a| tb.1[a] - tb.0[a]).product();
             let mut buf = vec![0.0f32; m * n];
             for &gi in &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]] {
                 let gi = gi as usize;
                 let Some(s) = &splats[gi] else { continue };
                 let dens = &g.densities[m * gi..m * gi + m];
-                if m == 1 {
-                    let w = dens[0];
-                    voxels(s, grid, &tb, cut2, |p, _, e| buf[p] += w * e);
-                } else {
-                    voxels(s, grid, &tb, cut2, |p, _, e| {
-                        for c in 0..m {
-                            buf[c * n + p] += dens[c] * e;
+                voxel_rows(s, &tc, cut2, |p, _, _, e| {
+                    for c in 0..m {
+                        let w = dens[c];
+                        for (b, e) in buf[c * n + p..c * n + p + e.len()].iter_mut().zip(e) {
+                            *b += w * e;
                         }
-                    });
-                }
+                    }
+                });
             }
             buf
         })
@@ -241,37 +271,57 @@ pub fn voxelize_backward(
                     }
                 }
             }
+            let tc = TileCentres::new(grid, tb);
             let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
-            let mut sc = vec![0.0f32; m];
+            // Per-lane (x) partial sums, reduced once per pair: [S_0..S_{M-1}] and the moments
+            // [x, y, z, xx, xy, xz, yy, yz, zz] of w·G, w = Σ_c ρ_c g_c.
+            let mut lanes = vec![[0.0f32; TILE]; m];
+            let mut mom = [[0.0f32; TILE]; 9];
             for (j, &gi) in list.iter().enumerate() {
                 let gi = gi as usize;
                 let Some(s) = &splats[gi] else { continue };
                 let dens = &g.densities[m * gi..m * gi + m];
-                sc.iter_mut().for_each(|v| *v = 0.0);
-                let mut sums = [0.0f32; 9];
-                voxels(s, grid, &tb, cut2, |p, d, e| {
-                    let mut wg = 0.0f32;
+                let dxs: [f32; TILE] = std::array::from_fn(|i| tc.c[0][i] - s.mean[0]);
+                voxel_rows(s, &tc, cut2, |p, x0, [dy, dz], e| {
+                    let k = e.len().min(TILE);
+                    let mut wge = [0.0f32; TILE];
                     for c in 0..m {
-                        let ge = gt[c * n + p] * e;
-                        sc[c] += ge;
-                        wg += dens[c] * ge;
+                        let gc = &gt[c * n + p..c * n + p + k];
+                        let rho = dens[c];
+                        let lane = &mut lanes[c];
+                        for i in 0..k {
+                            let ge = gc[i] * e[i];
+                            lane[i] += ge;
+                            wge[i] += rho * ge;
+                        }
                     }
-                    sums[0] += wg * d[0];
-                    sums[1] += wg * d[1];
-                    sums[2] += wg * d[2];
-                    sums[3] += wg * d[0] * d[0];
-                    sums[4] += wg * d[0] * d[1];
-                    sums[5] += wg * d[0] * d[2];
-                    sums[6] += wg * d[1] * d[1];
-                    sums[7] += wg * d[1] * d[2];
-                    sums[8] += wg * d[2] * d[2];
+                    let dx = &dxs[x0..x0 + k];
+                    let [lx, ly, lz, lxx, lxy, lxz, lyy, lyz, lzz] = &mut mom;
+                    for i in 0..k {
+                        let w = wge[i];
+                        let wx = w * dx[i];
+                        let wy = w * dy;
+                        let wz = w * dz;
+                        lx[i] += wx;
+                        ly[i] += wy;
+                        lz[i] += wz;
+                        lxx[i] += wx * dx[i];
+                        lxy[i] += wx * dy;
+                        lxz[i] += wx * dz;
+                        lyy[i] += wy * dy;
+                        lyz[i] += wy * dz;
+                        lzz[i] += wz * dz;
+                    }
                 });
                 let acc = &mut out[j * stride..(j + 1) * stride];
                 for c in 0..m {
-                    acc[c] = sc[c] as f64;
+                    acc[c] = lanes[c].iter().map(|&v| v as f64).sum();
+                    lanes[c] = [0.0; TILE];
                 }
+                // Packed [x, y, z, xx, xy, xz, yy, yz, zz].
                 for q in 0..9 {
-                    acc[m + q] = sums[q] as f64;
+                    acc[m + q] = mom[q].iter().map(|&v| v as f64).sum();
+                    mom[q] = [0.0; TILE];
                 }
             }
         });
