@@ -167,9 +167,25 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-fn time(iters: usize, mut f: impl FnMut()) -> f64 {
+/// Process CPU time (user + system) in ms, from `/proc/self/stat` (10 ms ticks); 0 elsewhere.
+fn cpu_ms() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) * 10.0
+}
+
+/// Median wall time (ms) of `iters` runs after one warm-up, and the mean CPU time (ms) per run
+/// (on a machine shared with other jobs, wall time overstates the cost; CPU time / threads is
+/// the uncontended wall time of perfectly parallel work).
+fn time(iters: usize, mut f: impl FnMut()) -> (f64, f64) {
     f();
-    median(
+    let c0 = cpu_ms();
+    let wall = median(
         (0..iters)
             .map(|_| {
                 let t = Instant::now();
@@ -177,7 +193,8 @@ fn time(iters: usize, mut f: impl FnMut()) -> f64 {
                 t.elapsed().as_secs_f64() * 1e3
             })
             .collect(),
-    )
+    );
+    (wall, (cpu_ms() - c0) / iters as f64)
 }
 
 /// One projection step: forward, loss, backward, read every gradient back to the host.
@@ -318,23 +335,23 @@ fn main() {
             .detach()
             .mul_scalar(0.9);
         let evals = count_project_evaluations(&slices, &cams, &opts);
-        let fwd = time(iters, || {
+        let (fwd, fwd_cpu) = time(iters, || {
             let _ = project(&g, &cams, None, &opts)
                 .unwrap()
                 .sum()
                 .into_scalar::<f32>();
         });
-        let step = time(iters, || {
+        let (step, step_cpu) = time(iters, || {
             let _ = project_step(&g, &cams, &target, &opts);
         });
         println!(
-            "project {name} cone 256², K = {k}: forward {fwd:.1} ms, forward+backward {step:.1} ms/iter; \
-             {evals} Gaussian–pixel evaluations → {:.0} M/s forward, {:.0} M/s forward+backward (2 passes)",
+            "project {name} cone 256², K = {k}: forward {fwd:.1} ms (CPU {fwd_cpu:.0} ms), \
+             forward+backward {step:.1} ms/iter (CPU {step_cpu:.0} ms); {evals} Gaussian–pixel \
+             evaluations per pass → {:.0} M/s forward, {:.0} M/s forward+backward (2 passes)",
             evals as f64 / fwd / 1e3,
             2.0 * evals as f64 / step / 1e3
         );
     }
-
     if enabled("voxelize") {
         bench_voxelize(&g, iters);
     }
@@ -355,7 +372,7 @@ fn bench_voxelize(g: &Gaussians, iters: usize) {
         })
         .collect();
     let mut i = 0;
-    let tv = time(iters, || {
+    let (tv, tv_cpu) = time(iters, || {
         let grid = patches[i % patches.len()];
         i += 1;
         let vol = voxelize(g, &grid, &VoxelizeOptions::default()).unwrap();
@@ -366,20 +383,20 @@ fn bench_voxelize(g: &Gaussians, iters: usize) {
         }
         std::hint::black_box(acc);
     });
-    println!("voxelize 32³ TV patch + backward, K = {k}: {tv:.1} ms/iter");
+    println!("voxelize 32³ TV patch + backward, K = {k}: {tv:.1} ms/iter (CPU {tv_cpu:.0} ms)");
     let full = VoxelGrid {
         dims: [128, 128, 128],
         voxel: [1.0; 3],
         offset: [0.0; 3],
     };
-    let vf = time(iters.min(3), || {
+    let (vf, vf_cpu) = time(iters.min(3), || {
         let _ = voxelize(g, &full, &VoxelizeOptions::default())
             .unwrap()
             .detach()
             .sum()
             .into_scalar::<f32>();
     });
-    println!("voxelize full 128³ forward, K = {k}: {vf:.1} ms");
+    println!("voxelize full 128³ forward, K = {k}: {vf:.1} ms (CPU {vf_cpu:.0} ms)");
 }
 
 fn bench_reference(host: &Host, ad: &Device, iters: usize) {
@@ -413,14 +430,14 @@ fn bench_reference(host: &Host, ad: &Device, iters: usize) {
         }
         acc
     };
-    let custom = time(iters, || {
+    let (custom, _) = time(iters, || {
         let grads = project(&gs, &[cam], None, &ProjectOptions::default())
             .unwrap()
             .sum()
             .backward();
         std::hint::black_box(read(&grads));
     });
-    let reference = time(iters, || {
+    let (reference, _) = time(iters, || {
         let grads = burn_reference_parallel(&gs, &cam).sum().backward();
         std::hint::black_box(read(&grads));
     });

@@ -156,6 +156,15 @@ pub fn validate_cameras(cameras: &[Camera]) -> Result<()> {
     };
     for (i, c) in cameras.iter().enumerate() {
         let field = |f: &str| format!("cameras[{i}].{f}");
+        if c.rows > 1 << 20 || c.cols > 1 << 20 {
+            return Err(RenderError::invalid(
+                field("rows/cols"),
+                format!(
+                    "{}×{} exceeds the 2^20 pixel limit per axis",
+                    c.rows, c.cols
+                ),
+            ));
+        }
         if c.rows == 0 || c.cols == 0 {
             return Err(RenderError::invalid(
                 field("rows/cols"),

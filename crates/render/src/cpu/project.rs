@@ -47,10 +47,10 @@ struct PixelSplat {
     beta: f32,
     gamma: f32,
     /// Pixel box `[x0, x1) × [y0, y1)` clamped to the detector.
-    x0: usize,
-    x1: usize,
-    y0: usize,
-    y1: usize,
+    x0: u32,
+    x1: u32,
+    y0: u32,
+    y1: u32,
 }
 
 struct Detector {
@@ -146,10 +146,10 @@ fn prepare(
                         a: s.conic.a as f32,
                         beta: s.conic.beta as f32,
                         gamma: s.conic.gamma as f32,
-                        x0: px[0],
-                        x1: px[1],
-                        y0: px[2],
-                        y1: px[3],
+                        x0: px[0] as u32,
+                        x1: px[1] as u32,
+                        y0: px[2] as u32,
+                        y1: px[3] as u32,
                     };
                     let ok = ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite();
                     if ok {
@@ -192,10 +192,27 @@ fn prepare(
     }
 }
 
-/// Visit the rows of `s` inside tile rect `r`: `f(local_row_start, dy, e)` where `e[j]` is
-/// `G = exp(−½ dᵀ Σ₂D⁻¹ d)` at pixel `x0 + j` of the row (0 beyond the cut-off) and
-/// `local_row_start` is the tile-local index of pixel `x0`; returns nothing if the rect misses.
-/// The row is evaluated branch-free in a fixed-size buffer so the compiler can vectorise it.
+/// Column span `[xs, xe)` of row `dy` (pixels from the centre) inside the cut-off ellipse
+/// `a (dx + β dy)² + γ dy² ≤ cut²`, clamped to `[x0, x1)`; widened by one pixel each side so
+/// rounding never drops a pixel the per-pixel test would keep.
+#[inline(always)]
+fn row_span(s: &PixelSplat, dy: f32, cut2: f32, x0: usize, x1: usize) -> Option<(usize, usize)> {
+    let rem = cut2 - s.gamma * dy * dy;
+    if rem.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    let half = (rem / s.a).sqrt();
+    let c = s.mx - s.beta * dy;
+    let lo = ((c - half).floor() - 1.0).max(x0 as f32);
+    let hi = ((c + half).ceil() + 2.0).min(x1 as f32);
+    (lo < hi).then_some((lo as usize, hi as usize))
+}
+
+/// Visit the rows of `s` inside tile rect `r`: `f(local_start, xs, dy, e)` where `e[j]` is
+/// `G = exp(−½ dᵀ Σ₂D⁻¹ d)` at pixel `xs + j` of the row (0 beyond the cut-off) and
+/// `local_start` is the tile-local index of pixel `xs`. Only the row's chord of the cut-off
+/// ellipse is evaluated (π/4 of the bounding box for a round footprint, far less for thin
+/// oblique ones), branch-free in a fixed-size buffer so the compiler can vectorise it.
 #[inline(always)]
 fn affine_rows(
     s: &PixelSplat,
@@ -203,27 +220,29 @@ fn affine_rows(
     cut2: f32,
     mut f: impl FnMut(usize, usize, f32, &[f32]),
 ) {
-    let (x0, x1) = (s.x0.max(r.0), s.x1.min(r.1));
-    let (y0, y1) = (s.y0.max(r.2), s.y1.min(r.3));
+    let (x0, x1) = ((s.x0 as usize).max(r.0), (s.x1 as usize).min(r.1));
+    let (y0, y1) = ((s.y0 as usize).max(r.2), (s.y1 as usize).min(r.3));
     if x0 >= x1 {
         return;
     }
     let tw = r.1 - r.0;
-    let n = x1 - x0;
     let mut e = [0.0f32; TILE];
-    let dx0 = x0 as f32 - s.mx;
     for y in y0..y1 {
         let dy = y as f32 - s.my;
+        let Some((xs, xe)) = row_span(s, dy, cut2, x0, x1) else {
+            continue;
+        };
+        let n = xe - xs;
+        let dx0 = xs as f32 - s.mx;
         let gdy = s.gamma * dy * dy;
         let bdy = s.beta * dy;
-        // Fixed trip count (the whole tile row): unrolled vector code; only e[..n] is used.
-        for (ej, &j) in e.iter_mut().zip(&IOTA) {
+        for (ej, &j) in e[..n].iter_mut().zip(&IOTA) {
             let d = dx0 + j + bdy;
             let q = s.a * d * d + gdy;
             let v = super::exp_neg(-0.5 * q);
             *ej = if q <= cut2 { v } else { 0.0 };
         }
-        f((y - r.2) * tw + x0 - r.0, x0, dy, &e[..n]);
+        f((y - r.2) * tw + xs - r.0, xs, dy, &e[..n]);
     }
 }
 
@@ -279,9 +298,13 @@ pub fn project_forward(
                 match &prep {
                     Prepared::Affine(splats, mus) => {
                         let mut w = vec![0.0f32; m];
-                        for &gi in list {
-                            let gi = gi as usize;
-                            let Some(s) = &splats[gi] else { continue };
+                        // Gather the tile's splats first: the cache misses of this tight loop
+                        // overlap, unlike misses taken inside the pixel loops.
+                        let local: Vec<(usize, PixelSplat)> = list
+                            .iter()
+                            .filter_map(|&gi| splats[gi as usize].map(|s| (gi as usize, s)))
+                            .collect();
+                        for &(gi, ref s) in &local {
                             let dens = &g.densities[m * gi..m * gi + m];
                             for c in 0..m {
                                 w[c] = (dens[c] as f64 * mus[gi]) as f32;
@@ -398,13 +421,18 @@ pub fn project_backward(
             }
             let mut lanes = vec![[0.0f32; TILE]; m];
             let mut mom = [[0.0f32; TILE]; 5];
+            // Gather the tile's affine splats first (see the forward pass).
+            let local: Vec<Option<PixelSplat>> = match &prep {
+                Prepared::Affine(splats, _) => list.iter().map(|&gi| splats[gi as usize]).collect(),
+                Prepared::Exact(_) => Vec::new(),
+            };
             for (j, &gi) in list.iter().enumerate() {
                 let gi = gi as usize;
                 let acc = &mut out[j * stride..(j + 1) * stride];
                 let dens = &g.densities[m * gi..m * gi + m];
                 match &prep {
-                    Prepared::Affine(splats, _) => {
-                        let Some(s) = &splats[gi] else { continue };
+                    Prepared::Affine(..) => {
+                        let Some(s) = &local[j] else { continue };
                         // Per-lane (pixel column) partial sums, reduced once per pair, so the row
                         // loops are element-wise and vectorise: [S_0..S_{M-1}, x, y, xx, xy, yy].
                         lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
@@ -557,8 +585,9 @@ pub fn project_backward(
     total
 }
 
-/// Number of Gaussian–pixel evaluations one forward pass performs (every pixel of every
-/// Gaussian's clamped footprint box, summed over views) — the work unit of the benchmarks.
+/// Number of Gaussian–pixel evaluations one forward pass performs (affine: the pixels of each
+/// footprint's cut-off rows; exact: every pixel of the footprint box; summed over views) — the
+/// work unit of the benchmarks.
 pub fn count_project_evaluations(
     g: &GaussianSlices,
     cams: &[Camera],
@@ -569,11 +598,18 @@ pub fn count_project_evaluations(
     for (v, cam) in cams.iter().enumerate() {
         let (prep, _) = prepare(g, &screen, v, cam, opts);
         total += match prep {
-            Prepared::Affine(splats, _) => splats
-                .iter()
-                .flatten()
-                .map(|s| (s.x1 - s.x0) * (s.y1 - s.y0))
-                .sum::<usize>(),
+            Prepared::Affine(splats, _) => {
+                let cut2 = (opts.cutoff * opts.cutoff) as f32;
+                let spans = |s: &PixelSplat| -> usize {
+                    (s.y0..s.y1)
+                        .filter_map(|y| {
+                            row_span(s, y as f32 - s.my, cut2, s.x0 as usize, s.x1 as usize)
+                        })
+                        .map(|(a, b)| b - a)
+                        .sum()
+                };
+                splats.iter().flatten().map(spans).sum::<usize>()
+            }
             Prepared::Exact(splats) => splats
                 .iter()
                 .flatten()
