@@ -63,10 +63,22 @@ fn prepare(
     grid: &VoxelGrid,
     cutoff: f64,
 ) -> (Vec<Option<VoxSplat>>, Vec<Option<TileBox>>) {
+    // Voxel-centre range per axis: a Gaussian whose cut-off reach (≤ cutoff · largest scale)
+    // misses it is rejected before any f64 shape work — most of them for a small TV patch.
+    let first = [0, 1, 2].map(|a| grid.centre(a, 0));
+    let last = [0, 1, 2].map(|a| grid.centre(a, grid.dims[a] - 1));
     (0..g.len())
         .into_par_iter()
         .map(|i| {
-            if g.densities_of(i).is_none() {
+            let reach = cutoff
+                * g.scales[3 * i..3 * i + 3]
+                    .iter()
+                    .fold(0.0f64, |m, &v| m.max(v.abs() as f64));
+            let far = (0..3).any(|a| {
+                let c = g.means[3 * i + a] as f64;
+                c + reach < first[a] || c - reach > last[a]
+            });
+            if far || g.densities_of(i).is_none() {
                 return (None, None);
             }
             let Some(s) = gm::voxel_splat(&g.geom(i), cutoff) else {
