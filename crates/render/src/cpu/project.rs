@@ -1,4 +1,12 @@
 //! Projection of Gaussians onto the detector of each view: forward and backward.
+//!
+//! Per view, every Gaussian is prepared once in f64 ([`gm::splat`] or [`gm::exact_splat`]) and
+//! binned into 16×16 tiles; the prepared geometry is shared by all M density channels. A pixel
+//! receives a Gaussian iff it lies within the Mahalanobis cut-off (affine: of the 2D footprint;
+//! exact: of the ray's closest approach) — a relative criterion, unlike upstream's absolute
+//! `ρμG < 1e-5` skip, so densities of 1e-8 still render. The affine backward recomputes the
+//! preparation, accumulates per-(tile, Gaussian) image-space sums and chains them per Gaussian
+//! through [`gm::splat_backward`]; the exact backward accumulates per-pixel `∂/∂(centre, Σ⁻¹)`.
 
 use rayon::prelude::*;
 

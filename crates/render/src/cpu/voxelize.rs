@@ -1,4 +1,10 @@
 //! Voxelization of Gaussians on a regular grid: forward and backward.
+//!
+//! Works in world units throughout, so the centre gradient is the true `∂L/∂mean`
+//! (`Σ w·G·Σ⁻¹d`). Upstream R²-Gaussian's voxelizer scales it by the voxel size instead of its
+//! inverse (a factor dV² too small); that quirk is deliberately not reproduced. No absolute skip
+//! threshold either: a voxel receives a Gaussian iff it lies within the Mahalanobis cut-off, so
+//! tiny densities (1e-8) are not silently dropped.
 
 use rayon::prelude::*;
 
