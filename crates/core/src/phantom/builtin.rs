@@ -2,8 +2,8 @@
 
 use super::ellipsoid::Ellipsoid;
 use super::spectral::{CALCIUM_DENSITY_MG_ML, Component, SpectralPhantom, iodine_fraction};
-use crate::physics::Material::{self, *};
 use crate::Result;
+use crate::physics::Material::{self, *};
 
 /// One row of the built-in table: label, centre and semi-axes in units of the radius, rotation
 /// about z (degrees), fraction deltas.

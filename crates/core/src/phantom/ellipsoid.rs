@@ -7,8 +7,8 @@
 //! non-zero the ellipsoid is turned counter-clockwise about +z (from x towards y), the rotation
 //! of the 2D Shepp–Logan tables.
 
-use crate::error::{ensure_finite, ensure_positive};
 use crate::Result;
+use crate::error::{ensure_finite, ensure_positive};
 use prism_render::Ray;
 use serde::{Deserialize, Serialize};
 
