@@ -1,2 +1,40 @@
 //! `prism`: simulate, inspect and reconstruct sparse-view spectral CT scenes.
-fn main() {}
+//!
+//! Each subcommand lives in its own module and only parses arguments, reports progress and calls
+//! `prism-core`; no algorithm lives here.
+
+mod info;
+mod simulate;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "prism", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate a spectral scene from a config (configs/*.yaml) into a scene directory.
+    Simulate(simulate::Args),
+    /// Print a scene's geometry, channels, availability and value ranges.
+    Info(info::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Simulate(args) => simulate::run(args),
+        Command::Info(args) => info::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -28,6 +28,30 @@ pub enum Error {
     Invalid { field: String, message: String },
 }
 
+/// `Ok` when `v` is finite and positive, else an [`Error::Invalid`] naming `field`.
+pub fn ensure_positive(field: impl AsRef<str>, v: f64) -> Result<()> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            field.as_ref(),
+            format!("must be positive and finite (got {v})"),
+        ))
+    }
+}
+
+/// `Ok` when `v` is finite, else an [`Error::Invalid`] naming `field`.
+pub fn ensure_finite(field: impl AsRef<str>, v: f64) -> Result<()> {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            field.as_ref(),
+            format!("must be finite (got {v})"),
+        ))
+    }
+}
+
 impl Error {
     /// An invalid-value error for `field`.
     pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {

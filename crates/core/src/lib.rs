@@ -12,5 +12,6 @@ pub mod phantom;
 pub mod physics;
 pub mod scene;
 pub mod simulate;
+pub mod yaml;
 
 pub use error::{Error, Result};

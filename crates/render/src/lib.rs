@@ -3,7 +3,29 @@
 //!
 //! This crate is a leaf: it consumes plain [`Camera`]s and Gaussian parameter tensors and knows
 //! nothing about scenes. Geometry conventions: `docs/geometry.md`.
+//!
+//! * [`project`]: Gaussians → `[V, M, rows, cols]` line integrals (affine splatting or the exact
+//!   per-ray closed form, [`ProjectionMode`]), cone and parallel beam, several views and density
+//!   channels per call; [`screen_probe`] / [`screen_grad_norm`] give the densification statistic.
+//! * [`voxelize`]: Gaussians → `[M, nz, ny, nx]` density on any [`VoxelGrid`].
+//! * [`gaussian_math`]: the per-Gaussian and per-ray math shared by forward and backward;
+//!   [`cpu`]: the rayon tile kernels used by the NdArray and Flex backends.
 
+// Index loops mirror the matrix math (and the CubeCL kernels that will port it).
+#![allow(clippy::needless_range_loop)]
+
+mod autodiff;
+mod backend;
 pub mod camera;
+pub mod cpu;
+pub mod error;
+pub mod gaussian_math;
+pub mod ops;
+pub mod options;
 
 pub use camera::{Camera, Projection, Ray};
+pub use error::{RenderError, Result};
+pub use ops::{
+    GaussianOps, Gaussians, project, screen_grad_norm, screen_probe, validate_cameras, voxelize,
+};
+pub use options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions};

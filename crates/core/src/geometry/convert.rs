@@ -41,19 +41,22 @@ fn default_mode() -> String {
     "cone".into()
 }
 
+/// `cone` or `parallel`, as both tools spell it.
+fn beam_mode(field: &str, mode: &str) -> Result<Beam> {
+    match mode {
+        "cone" => Ok(Beam::Cone),
+        "parallel" => Ok(Beam::Parallel),
+        other => Err(Error::invalid(
+            field,
+            format!("unknown beam mode `{other}` (expected `cone` or `parallel`)"),
+        )),
+    }
+}
+
 impl R2Scanner {
     /// The Prism geometry for these scanner fields and the given view angles (radians).
     pub fn to_geometry(&self, angles_rad: Vec<f64>) -> Result<Geometry> {
-        let beam = match self.mode.as_str() {
-            "cone" => Beam::Cone,
-            "parallel" => Beam::Parallel,
-            other => {
-                return Err(Error::invalid(
-                    "scanner.mode",
-                    format!("unknown beam mode `{other}` (expected `cone` or `parallel`)"),
-                ));
-            }
-        };
+        let beam = beam_mode("scanner.mode", &self.mode)?;
         let [rows, cols] = self.nDetector;
         let [nx, ny, nz] = self.nVoxel;
         let nonzero = |field: &str, n: usize| {
@@ -119,16 +122,7 @@ impl TigreGeometry {
     /// The Prism geometry for these TIGRE fields and angles (radians). Projections recorded by
     /// TIGRE must additionally have their rows flipped.
     pub fn to_geometry(&self, angles_rad: Vec<f64>) -> Result<Geometry> {
-        let beam = match self.mode.as_str() {
-            "cone" => Beam::Cone,
-            "parallel" => Beam::Parallel,
-            other => {
-                return Err(Error::invalid(
-                    "mode",
-                    format!("unknown beam mode `{other}` (expected `cone` or `parallel`)"),
-                ));
-            }
-        };
+        let beam = beam_mode("mode", &self.mode)?;
         let g = Geometry {
             beam,
             dso: self.DSO,

@@ -19,6 +19,7 @@ mod convert;
 pub use convert::{R2Scanner, TigreGeometry};
 pub use prism_render::{Camera, Projection, Ray};
 
+use crate::error::{ensure_finite as finite, ensure_positive as positive};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
@@ -163,12 +164,7 @@ impl VolumeGrid {
             positive(name, d)?;
         }
         for (k, o) in self.offset.iter().enumerate() {
-            if !o.is_finite() {
-                return Err(Error::invalid(
-                    format!("offset[{k}]"),
-                    format!("must be finite (got {o})"),
-                ));
-            }
+            finite(format!("offset[{k}]"), *o)?;
         }
         Ok(())
     }
@@ -291,7 +287,7 @@ impl Geometry {
             return Err(Error::invalid("angles_rad", "the view list is empty"));
         }
         for (i, a) in self.angles_rad.iter().enumerate() {
-            finite(&format!("angles_rad[{i}]"), *a)?;
+            finite(format!("angles_rad[{i}]"), *a)?;
         }
         // The whole volume must lie between the source and the detector.
         let (lo, hi) = self.volume.bounds();
@@ -313,25 +309,6 @@ impl Geometry {
             ));
         }
         Ok(())
-    }
-}
-
-fn positive(field: &str, v: f64) -> Result<()> {
-    if v.is_finite() && v > 0.0 {
-        Ok(())
-    } else {
-        Err(Error::invalid(
-            field,
-            format!("must be positive and finite (got {v})"),
-        ))
-    }
-}
-
-fn finite(field: &str, v: f64) -> Result<()> {
-    if v.is_finite() {
-        Ok(())
-    } else {
-        Err(Error::invalid(field, format!("must be finite (got {v})")))
     }
 }
 

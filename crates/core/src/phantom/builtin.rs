@@ -2,8 +2,8 @@
 
 use super::ellipsoid::Ellipsoid;
 use super::spectral::{CALCIUM_DENSITY_MG_ML, Component, SpectralPhantom, iodine_fraction};
+use crate::Result;
 use crate::physics::Material::{self, *};
-use crate::{Error, Result};
 
 /// One row of the built-in table: label, centre and semi-axes in units of the radius, rotation
 /// about z (degrees), fraction deltas.
@@ -51,12 +51,7 @@ impl SpectralPhantom {
     /// | cortical bone | 376 % | 156 % | 109 % |
     /// | soft tissue / adipose | +6 / −15 % | +5 / −8 % | +5 / −6 % |
     pub fn builtin(radius_mm: f64) -> Result<SpectralPhantom> {
-        if !(radius_mm.is_finite() && radius_mm > 0.0) {
-            return Err(Error::invalid(
-                "radius_mm",
-                format!("must be positive and finite (got {radius_mm})"),
-            ));
-        }
+        crate::error::ensure_positive("radius_mm", radius_mm)?;
         let [i2, i5, i10] = BUILTIN_IODINE_MG_ML.map(iodine_fraction);
         let ca = BUILTIN_CALCIUM_MG_ML / CALCIUM_DENSITY_MG_ML;
         let rows: Vec<Row> = vec![

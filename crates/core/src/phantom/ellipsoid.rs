@@ -7,7 +7,8 @@
 //! non-zero the ellipsoid is turned counter-clockwise about +z (from x towards y), the rotation
 //! of the 2D Shepp–Logan tables.
 
-use crate::{Error, Result};
+use crate::Result;
+use crate::error::{ensure_finite, ensure_positive};
 use prism_render::Ray;
 use serde::{Deserialize, Serialize};
 
@@ -42,25 +43,9 @@ impl Ellipsoid {
     /// Check that every number is finite and the semi-axes are positive.
     pub fn validate(&self) -> Result<()> {
         for k in 0..3 {
-            let (c, a, r) = (self.centre[k], self.semi_axes[k], self.rotation_deg[k]);
-            if !c.is_finite() {
-                return Err(Error::invalid(
-                    format!("centre[{k}]"),
-                    format!("must be finite (got {c})"),
-                ));
-            }
-            if !(a.is_finite() && a > 0.0) {
-                return Err(Error::invalid(
-                    format!("semi_axes[{k}]"),
-                    format!("must be positive and finite (got {a})"),
-                ));
-            }
-            if !r.is_finite() {
-                return Err(Error::invalid(
-                    format!("rotation_deg[{k}]"),
-                    format!("must be finite (got {r})"),
-                ));
-            }
+            ensure_finite(format!("centre[{k}]"), self.centre[k])?;
+            ensure_positive(format!("semi_axes[{k}]"), self.semi_axes[k])?;
+            ensure_finite(format!("rotation_deg[{k}]"), self.rotation_deg[k])?;
         }
         Ok(())
     }

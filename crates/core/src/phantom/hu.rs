@@ -221,12 +221,7 @@ impl HuVolume {
     /// A volume from its array and voxel size (dz, dy, dx) in mm.
     pub fn new(hu: Array3<f32>, voxel_zyx: [f64; 3]) -> Result<Self> {
         for (k, d) in voxel_zyx.iter().enumerate() {
-            if !(d.is_finite() && *d > 0.0) {
-                return Err(Error::invalid(
-                    format!("voxel_zyx[{k}]"),
-                    format!("must be positive and finite (got {d})"),
-                ));
-            }
+            crate::error::ensure_positive(format!("voxel_zyx[{k}]"), *d)?;
         }
         if hu.is_empty() {
             return Err(Error::invalid(

@@ -234,7 +234,8 @@ impl Scene {
         let dir = dir.as_ref();
         let yaml = dir.join(SCENE_FILE);
         let text = fs::read_to_string(&yaml).map_err(|e| Error::io(&yaml, e))?;
-        let file: SceneFile = serde_yaml_ng::from_str(&text).map_err(|e| yaml_error(&yaml, &e))?;
+        let file: SceneFile =
+            serde_yaml_ng::from_str(&text).map_err(|e| crate::yaml::error(&yaml, &e))?;
         let in_yaml = |e: Error| e.in_file(&yaml);
         if file.format_version != FORMAT_VERSION {
             return Err(Error::field(
@@ -312,21 +313,6 @@ fn is_replaceable(dir: &Path) -> Result<bool> {
     }
     let mut entries = fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
     Ok(entries.next().is_none())
-}
-
-/// A YAML error as a field error of `file`. serde_yaml_ng prefixes messages with the path of the
-/// offending value (`channels[1].coordinate: unknown variant …`); that path becomes the field.
-fn yaml_error(file: &Path, e: &serde_yaml_ng::Error) -> Error {
-    let msg = e.to_string();
-    let is_path = |p: &str| {
-        !p.is_empty()
-            && p.chars()
-                .all(|ch| ch.is_ascii_alphanumeric() || "_.[]".contains(ch))
-    };
-    match msg.split_once(": ") {
-        Some((path, rest)) if is_path(path) => Error::field(file, path, rest),
-        _ => Error::field(file, ".", msg),
-    }
 }
 
 /// Write an array and flush it to disk (so that the rename that publishes it is durable).

@@ -34,7 +34,7 @@ pub enum SpectralCoordinate {
     TubeVoltage { kvp: f64 },
     /// A photon-counting energy bin `[lo_kev, hi_kev)`, keV.
     Window { lo_kev: f64, hi_kev: f64 },
-    /// A blend `(1 − λ)·low + λ·high` of two tube-voltage channels (kVp).
+    /// A blend `λ·low + (1 − λ)·high` of two tube-voltage channels (kVp), as in the paper.
     Mixing {
         lambda: f64,
         low_kvp: f64,
@@ -82,16 +82,7 @@ impl SpectralCoordinate {
     /// Check the fields' own ranges (positive energies and voltages, ordered window edges).
     /// Errors name the field relative to the coordinate (`kev`, `hi_kev`…).
     pub fn validate(&self) -> Result<()> {
-        let positive = |field: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(Error::invalid(
-                    field,
-                    format!("must be positive and finite (got {v})"),
-                ))
-            }
-        };
+        use crate::error::ensure_positive as positive;
         match *self {
             SpectralCoordinate::Energy { kev } => positive("kev", kev),
             SpectralCoordinate::TubeVoltage { kvp } => positive("kvp", kvp),
@@ -115,12 +106,7 @@ impl SpectralCoordinate {
                 low_kvp,
                 high_kvp,
             } => {
-                if !lambda.is_finite() {
-                    return Err(Error::invalid(
-                        "lambda",
-                        format!("must be finite (got {lambda})"),
-                    ));
-                }
+                crate::error::ensure_finite("lambda", lambda)?;
                 positive("low_kvp", low_kvp)?;
                 positive("high_kvp", high_kvp)?;
                 if high_kvp <= low_kvp {

@@ -17,6 +17,13 @@ fn stats(values: impl Iterator<Item = f32>) -> Option<(f32, f32, f64)> {
     (n > 0).then(|| (lo, hi, sum / n as f64))
 }
 
+/// A length or distance with at most 4 decimals and no trailing zeros (`5.3333`, `1000`).
+fn mm(v: f64) -> String {
+    let s = format!("{v:.4}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" { "0".into() } else { s.into() }
+}
+
 fn fmt_stats(s: Option<(f32, f32, f64)>) -> [String; 3] {
     match s {
         Some((lo, hi, mean)) => [format!("{lo:.4}"), format!("{hi:.4}"), format!("{mean:.4}")],
@@ -84,8 +91,8 @@ impl Scene {
                 "DSO / DSD",
                 format!(
                     "{} / {} mm (magnification {:.4})",
-                    g.dso,
-                    g.dsd,
+                    mm(g.dso),
+                    mm(g.dsd),
                     g.magnification()
                 ),
             ),
@@ -93,7 +100,12 @@ impl Scene {
                 "detector",
                 format!(
                     "{} rows × {} cols, pitch {} × {} mm (u × v), offset ({}, {}) mm (u, v)",
-                    d.rows, d.cols, d.pitch_u, d.pitch_v, d.offset_u, d.offset_v
+                    d.rows,
+                    d.cols,
+                    mm(d.pitch_u),
+                    mm(d.pitch_v),
+                    mm(d.offset_u),
+                    mm(d.offset_v)
                 ),
             ),
             (
@@ -104,15 +116,15 @@ impl Scene {
                     vg.nx,
                     vg.ny,
                     vg.nz,
-                    vg.dx,
-                    vg.dy,
-                    vg.dz,
-                    sx,
-                    sy,
-                    sz,
-                    vg.offset[0],
-                    vg.offset[1],
-                    vg.offset[2]
+                    mm(vg.dx),
+                    mm(vg.dy),
+                    mm(vg.dz),
+                    mm(sx),
+                    mm(sy),
+                    mm(sz),
+                    mm(vg.offset[0]),
+                    mm(vg.offset[1]),
+                    mm(vg.offset[2])
                 ),
             ),
             (

@@ -1,0 +1,21 @@
+//! `prism info <scene_dir>`.
+
+use prism_core::scene::Scene;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Scene directory (scene.yaml + .npy arrays), or an R²-Gaussian case folder (meta_data.json).
+    scene: PathBuf,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let scene =
+        if args.scene.join("meta_data.json").exists() && !args.scene.join("scene.yaml").exists() {
+            Scene::load_r2(&args.scene)?
+        } else {
+            Scene::load(&args.scene)?
+        };
+    print!("{}", scene.summary());
+    Ok(())
+}

@@ -1,0 +1,300 @@
+//! [`CurveModel`]: GSC-Net or the MLP ablation behind one checked entry point.
+
+use crate::init::SeedStream;
+use burn::module::Module;
+use burn::tensor::{Device, Tensor};
+
+use crate::config::{CurveModelConfig, CurveModelKind};
+use crate::grid::SpectralGrid;
+use crate::gscnet::GscNet;
+use crate::mlp::CurveMlp;
+use crate::{Error, Result};
+
+/// The network inside a [`CurveModel`].
+// One model exists per reconstruction, so the variants' size difference (~1 KB of handles) is
+// irrelevant and boxing would complicate the derived `Module`.
+#[allow(clippy::large_enum_variant)]
+#[derive(Module, Debug)]
+pub enum CurveNet {
+    Gscnet(GscNet),
+    Mlp(CurveMlp),
+}
+
+/// A spectral curve model built for one observed grid of M ≥ 2 channels.
+///
+/// GSC-Net's basis B ∈ R^{R×M} has one column per observed grid point, so a model is tied to the
+/// grid it was built for; unobserved channels are queried from the predicted curve with
+/// [`crate::interpolate_curve`], not by feeding a new τ.
+#[derive(Module, Debug)]
+pub struct CurveModel {
+    pub net: CurveNet,
+    channels: usize,
+}
+
+impl CurveModelConfig {
+    /// Build the configured model for `grid` on `device`, with parameters drawn from `seed`.
+    ///
+    /// Errors: an invalid config field (named under `curve_model`), or a grid of one channel:
+    /// with M = 1 there is no spectral axis and stage 2 is skipped, so no curve model exists.
+    pub fn init(&self, grid: &SpectralGrid, device: &Device, seed: u64) -> Result<CurveModel> {
+        self.validate().map_err(|e| e.under("curve_model"))?;
+        let m = grid.len();
+        if m < 2 {
+            return Err(Error::invalid(
+                "tau",
+                format!(
+                    "the spectral grid has M = {m} channel: a curve model needs M ≥ 2; \
+                     with one channel the spectral stage (stage 2) is skipped and the \
+                     stage-1 densities are the result"
+                ),
+            ));
+        }
+        let mut rng = SeedStream::new(seed);
+        let net = match self.kind {
+            CurveModelKind::Gscnet => CurveNet::Gscnet(GscNet::new(&mut rng, self, m, device)),
+            CurveModelKind::Mlp => CurveNet::Mlp(CurveMlp::new(&mut rng, self, device)),
+        };
+        Ok(CurveModel { net, channels: m })
+    }
+}
+
+impl CurveModel {
+    /// Number of observed channels M the model was built for.
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+
+    /// Which network this is.
+    pub fn kind(&self) -> CurveModelKind {
+        match self.net {
+            CurveNet::Gscnet(_) => CurveModelKind::Gscnet,
+            CurveNet::Mlp(_) => CurveModelKind::Mlp,
+        }
+    }
+
+    /// Raw density curves Δu [K, M] for common raw densities `u_c` [K] on the grid `tau` [M]
+    /// (pass `grid.to_tensor(device)` of the grid the model was built for). K = 0 gives an
+    /// empty `[0, M]` tensor. Only shapes are checked here (no device read-back); the grid
+    /// values were checked by [`SpectralGrid::new`].
+    pub fn forward(&self, u_c: Tensor<1>, tau: Tensor<1>) -> Result<Tensor<2>> {
+        let [m] = tau.dims();
+        if m != self.channels {
+            return Err(Error::invalid(
+                "tau",
+                format!(
+                    "has {m} grid points but the model was built for M = {} channels",
+                    self.channels
+                ),
+            ));
+        }
+        let [k] = u_c.dims();
+        if k == 0 {
+            return Ok(Tensor::zeros([0, m], &u_c.device()));
+        }
+        Ok(match &self.net {
+            CurveNet::Gscnet(net) => net.forward(u_c, tau),
+            CurveNet::Mlp(net) => net.forward(u_c, tau),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::module::{ModuleVisitor, Param};
+    use burn::optim::{AdamConfig, GradientsParams};
+    use burn::tensor::TensorData;
+
+    fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.into_data().try_into_vec().unwrap()
+    }
+
+    /// An uneven grid on [0, 1]: τ_m = (m / (M − 1))².
+    fn uneven_grid(m: usize) -> SpectralGrid {
+        SpectralGrid::new(
+            (0..m)
+                .map(|i| (i as f32 / (m - 1) as f32).powi(2))
+                .collect(),
+        )
+        .unwrap()
+    }
+
+    fn config(kind: CurveModelKind) -> CurveModelConfig {
+        CurveModelConfig {
+            kind,
+            ..CurveModelConfig::default()
+        }
+    }
+
+    const KINDS: [CurveModelKind; 2] = [CurveModelKind::Gscnet, CurveModelKind::Mlp];
+
+    #[test]
+    fn shapes_and_finite_outputs_for_extreme_densities_and_uneven_grids() {
+        let device = crate::test_util::cpu();
+        let u = [-1e3f32, -30.0, 0.0, 30.0, 1e3, -2.5, 1.0];
+        for kind in KINDS {
+            for m in [2, 3, 8, 16] {
+                let grid = uneven_grid(m);
+                let model = config(kind).init(&grid, &device, 5).unwrap();
+                assert_eq!((model.channels(), model.kind()), (m, kind));
+                let out = model
+                    .forward(Tensor::from_floats(u, &device), grid.to_tensor(&device))
+                    .unwrap();
+                assert_eq!(out.dims(), [7, m], "{kind:?} M = {m}");
+                let v = values(out);
+                assert!(v.iter().all(|x| x.is_finite()), "{kind:?} M = {m}: {v:?}");
+                // The head starts near zero: stage 2 starts from the stage-1 densities.
+                let max = v.iter().fold(0.0f32, |a, x| a.max(x.abs()));
+                assert!(max < 0.1, "{kind:?} M = {m}: |Δu| up to {max} at init");
+            }
+        }
+    }
+
+    #[test]
+    fn init_is_deterministic_in_the_seed() {
+        let device = crate::test_util::cpu();
+        let grid = uneven_grid(4);
+        let run = |seed| {
+            let model = CurveModelConfig::default()
+                .init(&grid, &device, seed)
+                .unwrap();
+            let u = Tensor::from_floats([0.5f32, -1.0], &device);
+            values(model.forward(u, grid.to_tensor(&device)).unwrap())
+        };
+        assert_eq!(run(1), run(1));
+        assert_ne!(run(1), run(2));
+    }
+
+    #[test]
+    fn bad_grids_sizes_and_configs_are_rejected_with_named_fields() {
+        let device = crate::test_util::cpu();
+        for kind in KINDS {
+            let one = SpectralGrid::new(vec![0.5]).unwrap();
+            let e = config(kind).init(&one, &device, 0).unwrap_err();
+            assert_eq!(e.field(), "tau");
+            assert!(e.to_string().contains("stage 2") && e.to_string().contains("skipped"));
+
+            let grid = uneven_grid(3);
+            let model = config(kind).init(&grid, &device, 0).unwrap();
+            let u = Tensor::<1>::from_floats([0.0f32, 1.0], &device);
+            let e = model
+                .forward(u.clone(), uneven_grid(4).to_tensor(&device))
+                .unwrap_err();
+            assert_eq!(e.field(), "tau");
+            assert!(e.to_string().contains("M = 3"));
+            // K = 0 (everything pruned) is an empty curve set, not an error.
+            let empty = model
+                .forward(Tensor::<1>::zeros([0], &device), grid.to_tensor(&device))
+                .unwrap();
+            assert_eq!(empty.dims(), [0, 3]);
+        }
+        let bad = CurveModelConfig {
+            conv_kernel: 2,
+            ..CurveModelConfig::default()
+        };
+        let e = bad.init(&uneven_grid(3), &device, 0).unwrap_err();
+        assert_eq!(e.field(), "curve_model.conv_kernel");
+    }
+
+    /// Collects, for every float parameter, whether its gradient exists, is finite and non-zero.
+    struct GradientAudit<'a> {
+        grads: &'a burn::tensor::Gradients,
+        seen: usize,
+        problems: Vec<String>,
+    }
+
+    impl ModuleVisitor for GradientAudit<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.seen += 1;
+            let shape = param.val().dims();
+            match param.val().grad(self.grads) {
+                None => self.problems.push(format!("{shape:?}: no gradient")),
+                Some(g) => {
+                    let g = values(g);
+                    if !g.iter().all(|v| v.is_finite()) {
+                        self.problems
+                            .push(format!("{shape:?}: non-finite gradient"));
+                    } else if g.iter().all(|&v| v == 0.0) {
+                        self.problems.push(format!("{shape:?}: all-zero gradient"));
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn every_parameter_receives_a_finite_nonzero_gradient() {
+        let device = crate::test_util::cpu().autodiff();
+        for kind in KINDS {
+            let grid = uneven_grid(5);
+            let model = config(kind).init(&grid, &device, 9).unwrap();
+            let u = Tensor::<1>::from_floats([-1e3f32, -3.0, 0.0, 2.0, 1e3], &device);
+            let out = model.forward(u, grid.to_tensor(&device)).unwrap();
+            let r = Tensor::<2>::from_data(
+                TensorData::new((0..25).map(|i| (i as f32 * 0.7).sin()).collect(), [5, 5]),
+                &device,
+            );
+            let grads = out.mul(r).sum().backward();
+            let mut audit = GradientAudit {
+                grads: &grads,
+                seen: 0,
+                problems: Vec::new(),
+            };
+            model.visit(&mut audit);
+            assert!(audit.seen > 5, "{kind:?}: only {} parameters", audit.seen);
+            assert!(audit.problems.is_empty(), "{kind:?}: {:?}", audit.problems);
+        }
+    }
+
+    /// A smooth target curve set: Δu*(u, τ) = 0.5 tanh(u/4)(1 − τ) + 0.3 sin(πτ) − 0.2 τ².
+    fn target(u: f32, tau: f32) -> f32 {
+        0.5 * (u / 4.0).tanh() * (1.0 - tau) + 0.3 * (std::f32::consts::PI * tau).sin()
+            - 0.2 * tau * tau
+    }
+
+    fn fit(kind: CurveModelKind) -> (f32, f32) {
+        let device = crate::test_util::cpu().autodiff();
+        let grid = SpectralGrid::new(vec![0.0, 0.15, 0.4, 0.7, 1.0]).unwrap();
+        let u: Vec<f32> = (0..12).map(|i| -6.0 + i as f32 * (10.0 / 11.0)).collect();
+        let t: Vec<f32> = u
+            .iter()
+            .flat_map(|&ui| grid.values().iter().map(move |&tm| target(ui, tm)))
+            .collect();
+        let u = Tensor::<1>::from_data(TensorData::new(u, [12]), &device);
+        let t = Tensor::<2>::from_data(TensorData::new(t, [12, 5]), &device);
+        let tau = grid.to_tensor(&device);
+        let cfg = CurveModelConfig {
+            kind,
+            width: 16,
+            state_size: 4,
+            ..CurveModelConfig::default()
+        };
+        let mut model = cfg.init(&grid, &device, 21).unwrap();
+        let mut optim = AdamConfig::new().init();
+        let mut first = None;
+        let mut last = f32::NAN;
+        for _ in 0..300 {
+            let pred = model.forward(u.clone(), tau.clone()).unwrap();
+            let loss = pred.sub(t.clone()).powi_scalar(2).mean();
+            last = values(loss.clone())[0];
+            first.get_or_insert(last);
+            let grads = GradientsParams::from_grads(loss.backward(), &model);
+            model = optim.step(1e-2, model, grads);
+        }
+        let first = first.unwrap();
+        println!("{kind:?}: L2 loss {first:.3e} → {last:.3e} in 300 Adam steps");
+        (first, last)
+    }
+
+    #[test]
+    fn gscnet_fits_a_smooth_curve_set() {
+        let (first, last) = fit(CurveModelKind::Gscnet);
+        assert!(last < first / 50.0, "GSC-Net L2 loss {first} → {last}");
+    }
+
+    #[test]
+    fn mlp_fits_a_smooth_curve_set() {
+        let (first, last) = fit(CurveModelKind::Mlp);
+        assert!(last < first / 50.0, "MLP L2 loss {first} → {last}");
+    }
+}

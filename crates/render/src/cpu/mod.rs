@@ -1,0 +1,86 @@
+//! CPU kernels (rayon) shared by the NdArray and Flex backends: slices in, `Vec`s out.
+//!
+//! Both passes bin Gaussians into tiles first (no per-pixel scan of all Gaussians). The forward
+//! pass owns one tile per task and sums its Gaussians in any order (no atomics, no depth sort);
+//! the backward pass writes per-(tile, Gaussian) partial sums into disjoint slices, then gathers
+//! them per Gaussian — there are no shared writes anywhere.
+
+mod project;
+mod tiles;
+mod voxelize;
+
+pub use project::{ProjectGrads, count_project_evaluations, project_backward, project_forward};
+pub use tiles::{Bins, TileBox, tile_span};
+pub use voxelize::{VoxelizeGrads, voxelize_backward, voxelize_forward};
+
+use crate::gaussian_math::GaussianGeom;
+
+/// `exp(x)` for `x ≤ 0` in f32, branch-free and conversion-free so pixel rows vectorise:
+/// `2ⁿ · e^y` with `n = round(x / ln 2)`, `|y| ≤ ln2 / 2` and a degree-6 Taylor polynomial
+/// (truncation `|y|⁷/7! < 1.2e-7`). `n` is read from the bits of the rounding sum itself, so no
+/// float→int conversion is needed. Arguments below −87 (and −∞) are clamped to −87 (result
+/// ≈ 1.6e-38, where the value no longer matters); NaN propagates.
+#[inline(always)]
+pub fn exp_neg(x: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    const LN2_HI: f32 = 0.693_145_75;
+    const LN2_LO: f32 = 1.428_606_8e-6;
+    // Adding 1.5·2²³ rounds to the nearest integer (without SSE4.1) and leaves that integer in
+    // the low mantissa bits: t.to_bits() − MAGIC.to_bits() = n.
+    const MAGIC: f32 = 12_582_912.0;
+    let x = x.clamp(-87.0, 0.0);
+    let t = x * LOG2E + MAGIC;
+    let n = t - MAGIC;
+    let ni = (t.to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
+    let y = (x - n * LN2_HI) - n * LN2_LO;
+    let p = 1.0
+        + y * (1.0
+            + y * (0.5
+                + y * (1.0 / 6.0 + y * (1.0 / 24.0 + y * (1.0 / 120.0 + y * (1.0 / 720.0))))));
+    let scale = f32::from_bits(((ni + 127) as u32) << 23);
+    p * scale
+}
+
+/// Borrowed Gaussian parameters, row-major: means `[K, 3]`, scales `[K, 3]`, rotations `[K, 4]`
+/// (`w, x, y, z`), densities `[K, M]` (M channels sharing one geometry).
+#[derive(Clone, Copy, Debug)]
+pub struct GaussianSlices<'a> {
+    pub means: &'a [f32],
+    pub scales: &'a [f32],
+    pub rotations: &'a [f32],
+    pub densities: &'a [f32],
+    pub channels: usize,
+}
+
+impl GaussianSlices<'_> {
+    /// Number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.means.len() / 3
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    #[inline]
+    pub fn geom(&self, i: usize) -> GaussianGeom {
+        let m = &self.means[3 * i..3 * i + 3];
+        let s = &self.scales[3 * i..3 * i + 3];
+        let q = &self.rotations[4 * i..4 * i + 4];
+        GaussianGeom {
+            mean: [m[0] as f64, m[1] as f64, m[2] as f64],
+            scale: [s[0] as f64, s[1] as f64, s[2] as f64],
+            quat: [q[0] as f64, q[1] as f64, q[2] as f64, q[3] as f64],
+        }
+    }
+
+    /// Densities of Gaussian `i`, or `None` if any is non-finite (the Gaussian is then skipped).
+    #[inline]
+    pub fn densities_of(&self, i: usize) -> Option<&[f32]> {
+        let d = &self.densities[self.channels * i..self.channels * (i + 1)];
+        d.iter().all(|v| v.is_finite()).then_some(d)
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests;

@@ -1,0 +1,629 @@
+//! Projection of Gaussians onto the detector of each view: forward and backward.
+//!
+//! Per view, every Gaussian is prepared once in f64 ([`gm::splat`] or [`gm::exact_splat`]) and
+//! binned into 16×16 tiles; the prepared geometry is shared by all M density channels. A pixel
+//! receives a Gaussian iff it lies within the Mahalanobis cut-off (affine: of the 2D footprint;
+//! exact: of the ray's closest approach) — a relative criterion, unlike upstream's absolute
+//! `ρμG < 1e-5` skip, so densities of 1e-8 still render. The affine backward recomputes the
+//! preparation, accumulates per-(tile, Gaussian) image-space sums and chains them per Gaussian
+//! through [`gm::splat_backward`]; the exact backward accumulates per-pixel `∂/∂(centre, Σ⁻¹)`.
+
+use rayon::prelude::*;
+
+use super::GaussianSlices;
+use super::tiles::{Bins, TileBox, tile_span};
+use crate::camera::Camera;
+use crate::gaussian_math::{
+    self as gm, ExactSplat, GaussianGeom, SplatGrad, camera_ray, exact_splat, exact_splat_backward,
+    line_integral_backward, ray_terms, sym_pack, sym_unpack,
+};
+use crate::options::{ProjectOptions, ProjectionMode};
+
+/// Detector tile edge in pixels.
+pub const TILE: usize = 16;
+
+/// `[0, 1, …, TILE − 1]` as f32: pixel offsets within a row without int→float conversions
+/// (which would keep the row loops from vectorising).
+const IOTA: [f32; TILE] = {
+    let mut a = [0.0f32; TILE];
+    let mut i = 0;
+    while i < TILE {
+        a[i] = i as f32;
+        i += 1;
+    }
+    a
+};
+
+/// Gradients of a projection with respect to every input, row-major like the inputs.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ProjectGrads {
+    pub means: Vec<f32>,
+    pub scales: Vec<f32>,
+    pub rotations: Vec<f32>,
+    pub densities: Vec<f32>,
+    /// `∂L/∂(screen offset)` per view and Gaussian, `[V, K, 2]` in pixels⁻¹: the projected-centre
+    /// gradient that densification thresholds.
+    pub screen: Vec<f32>,
+}
+
+/// An affine splat reduced to what the pixel loop reads (f32), with its clamped pixel box.
+#[derive(Clone, Copy, Debug)]
+struct PixelSplat {
+    mx: f32,
+    my: f32,
+    a: f32,
+    beta: f32,
+    gamma: f32,
+    /// Pixel box `[x0, x1) × [y0, y1)` clamped to the detector.
+    x0: u32,
+    x1: u32,
+    y0: u32,
+    y1: u32,
+}
+
+struct Detector {
+    rows: usize,
+    cols: usize,
+    tiles_x: usize,
+    tiles_y: usize,
+}
+
+impl Detector {
+    fn new(cam: &Camera) -> Self {
+        Self {
+            rows: cam.rows,
+            cols: cam.cols,
+            tiles_x: cam.cols.div_ceil(TILE),
+            tiles_y: cam.rows.div_ceil(TILE),
+        }
+    }
+
+    fn tile_rect(&self, t: usize) -> (usize, usize, usize, usize) {
+        let (tx, ty) = (t % self.tiles_x, t / self.tiles_x);
+        let x0 = tx * TILE;
+        let y0 = ty * TILE;
+        (
+            x0,
+            (x0 + TILE).min(self.cols),
+            y0,
+            (y0 + TILE).min(self.rows),
+        )
+    }
+
+    /// Pixel and tile boxes of a footprint `[col_min, col_max] × [row_min, row_max]`.
+    fn boxes(&self, bb: [f64; 4]) -> Option<([usize; 4], TileBox)> {
+        let (x0, x1, tx0, tx1) = tile_span(bb[0], bb[1], self.cols, TILE)?;
+        let (y0, y1, ty0, ty1) = tile_span(bb[2], bb[3], self.rows, TILE)?;
+        Some((
+            [x0, x1, y0, y1],
+            TileBox {
+                lo: [tx0, ty0, 0],
+                hi: [tx1, ty1, 1],
+            },
+        ))
+    }
+}
+
+/// Per-view preparation of every Gaussian.
+enum Prepared {
+    Affine(Vec<Option<PixelSplat>>, Vec<f64>),
+    Exact(Vec<Option<(ExactSplat, [usize; 4])>>),
+}
+
+fn screen_offset(screen: &[f32], k: usize, view: usize, i: usize) -> [f64; 2] {
+    let o = 2 * (view * k + i);
+    [screen[o] as f64, screen[o + 1] as f64]
+}
+
+type ExactPrepared = (Option<(ExactSplat, [usize; 4])>, Option<TileBox>);
+
+fn prepare(
+    g: &GaussianSlices,
+    screen: &[f32],
+    view: usize,
+    cam: &Camera,
+    opts: &ProjectOptions,
+) -> (Prepared, Vec<Option<TileBox>>) {
+    let k = g.len();
+    let det = Detector::new(cam);
+    match opts.mode {
+        ProjectionMode::Affine => {
+            let near = opts.near_fraction * cam.sdd;
+            let items: Vec<(Option<PixelSplat>, f64, Option<TileBox>)> = (0..k)
+                .into_par_iter()
+                .map(|i| {
+                    if g.densities_of(i).is_none() {
+                        return (None, 0.0, None);
+                    }
+                    let off = screen_offset(screen, k, view, i);
+                    let Some(s) = gm::splat(&g.geom(i), cam, off, opts.cutoff, near) else {
+                        return (None, 0.0, None);
+                    };
+                    let bb = [
+                        s.mean[0] - s.half_extent[0],
+                        s.mean[0] + s.half_extent[0],
+                        s.mean[1] - s.half_extent[1],
+                        s.mean[1] + s.half_extent[1],
+                    ];
+                    let Some((px, tb)) = det.boxes(bb) else {
+                        return (None, 0.0, None);
+                    };
+                    let ps = PixelSplat {
+                        mx: s.mean[0] as f32,
+                        my: s.mean[1] as f32,
+                        a: s.conic.a as f32,
+                        beta: s.conic.beta as f32,
+                        gamma: s.conic.gamma as f32,
+                        x0: px[0] as u32,
+                        x1: px[1] as u32,
+                        y0: px[2] as u32,
+                        y1: px[3] as u32,
+                    };
+                    let ok = ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite();
+                    if ok {
+                        (Some(ps), s.mu, Some(tb))
+                    } else {
+                        (None, 0.0, None)
+                    }
+                })
+                .collect();
+            let mut splats = Vec::with_capacity(k);
+            let mut mus = Vec::with_capacity(k);
+            let mut boxes = Vec::with_capacity(k);
+            for (s, mu, b) in items {
+                splats.push(s);
+                mus.push(mu);
+                boxes.push(b);
+            }
+            (Prepared::Affine(splats, mus), boxes)
+        }
+        ProjectionMode::Exact => {
+            let items: Vec<ExactPrepared> = (0..k)
+                .into_par_iter()
+                .map(|i| {
+                    if g.densities_of(i).is_none() {
+                        return (None, None);
+                    }
+                    let off = screen_offset(screen, k, view, i);
+                    let Some(s) = exact_splat(&g.geom(i), cam, off, opts.cutoff) else {
+                        return (None, None);
+                    };
+                    match det.boxes(s.bbox) {
+                        Some((px, tb)) => (Some((s, px)), Some(tb)),
+                        None => (None, None),
+                    }
+                })
+                .collect();
+            let (splats, boxes) = items.into_iter().unzip();
+            (Prepared::Exact(splats), boxes)
+        }
+    }
+}
+
+/// Column span `[xs, xe)` of row `dy` (pixels from the centre) inside the cut-off ellipse
+/// `a (dx + β dy)² + γ dy² ≤ cut²`, clamped to `[x0, x1)`; widened by one pixel each side so
+/// rounding never drops a pixel the per-pixel test would keep.
+#[inline(always)]
+fn row_span(s: &PixelSplat, dy: f32, cut2: f32, x0: usize, x1: usize) -> Option<(usize, usize)> {
+    let rem = cut2 - s.gamma * dy * dy;
+    if rem.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    let half = (rem / s.a).sqrt();
+    let c = s.mx - s.beta * dy;
+    let lo = ((c - half).floor() - 1.0).max(x0 as f32);
+    let hi = ((c + half).ceil() + 2.0).min(x1 as f32);
+    (lo < hi).then_some((lo as usize, hi as usize))
+}
+
+/// Visit the rows of `s` inside tile rect `r`: `f(local_start, xs, dy, e)` where `e[j]` is
+/// `G = exp(−½ dᵀ Σ₂D⁻¹ d)` at pixel `xs + j` of the row (0 beyond the cut-off) and
+/// `local_start` is the tile-local index of pixel `xs`. Only the row's chord of the cut-off
+/// ellipse is evaluated (π/4 of the bounding box for a round footprint, far less for thin
+/// oblique ones), branch-free in a fixed-size buffer so the compiler can vectorise it.
+#[inline(always)]
+fn affine_rows(
+    s: &PixelSplat,
+    r: (usize, usize, usize, usize),
+    cut2: f32,
+    mut f: impl FnMut(usize, usize, f32, &[f32]),
+) {
+    let (x0, x1) = ((s.x0 as usize).max(r.0), (s.x1 as usize).min(r.1));
+    let (y0, y1) = ((s.y0 as usize).max(r.2), (s.y1 as usize).min(r.3));
+    if x0 >= x1 {
+        return;
+    }
+    let tw = r.1 - r.0;
+    let mut e = [0.0f32; TILE];
+    for y in y0..y1 {
+        let dy = y as f32 - s.my;
+        let Some((xs, xe)) = row_span(s, dy, cut2, x0, x1) else {
+            continue;
+        };
+        let n = xe - xs;
+        let dx0 = xs as f32 - s.mx;
+        let gdy = s.gamma * dy * dy;
+        let bdy = s.beta * dy;
+        for (ej, &j) in e[..n].iter_mut().zip(&IOTA) {
+            let d = dx0 + j + bdy;
+            let q = s.a * d * d + gdy;
+            let v = super::exp_neg(-0.5 * q);
+            *ej = if q <= cut2 { v } else { 0.0 };
+        }
+        f((y - r.2) * tw + xs - r.0, xs, dy, &e[..n]);
+    }
+}
+
+/// Visit the pixels of an exact splat inside tile rect `r`: `f(local_index, col, row)`.
+#[inline(always)]
+fn exact_pixels(
+    px: &[usize; 4],
+    r: (usize, usize, usize, usize),
+    mut f: impl FnMut(usize, usize, usize),
+) {
+    let (x0, x1) = (px[0].max(r.0), px[1].min(r.1));
+    let (y0, y1) = (px[2].max(r.2), px[3].min(r.3));
+    let tw = r.1 - r.0;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            f((y - r.2) * tw + x - r.0, x, y);
+        }
+    }
+}
+
+/// Forward projection: image `[V, M, rows, cols]` of line integrals.
+///
+/// `screen` holds per-view screen offsets `[V, K, 2]` (pixels) added to the projected centres
+/// (zeros in normal use; their gradient is the densification statistic). Every camera must have
+/// the same detector size (checked by the caller).
+pub fn project_forward(
+    g: &GaussianSlices,
+    screen: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
+    let m = g.channels;
+    let Some(first) = cams.first() else {
+        return Vec::new();
+    };
+    let plane = first.rows * first.cols;
+    let mut out = vec![0.0f32; cams.len() * m * plane];
+    if g.is_empty() || plane == 0 || m == 0 {
+        return out;
+    }
+    let cut2 = opts.cutoff * opts.cutoff;
+    for (v, cam) in cams.iter().enumerate() {
+        let det = Detector::new(cam);
+        let (prep, boxes) = prepare(g, screen, v, cam, opts);
+        let bins = Bins::new([det.tiles_x, det.tiles_y, 1], &boxes);
+        let tiles: Vec<Vec<f32>> = (0..bins.tiles())
+            .into_par_iter()
+            .map(|t| {
+                let r = det.tile_rect(t);
+                let n = (r.1 - r.0) * (r.3 - r.2);
+                let mut buf = vec![0.0f32; m * n];
+                let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
+                match &prep {
+                    Prepared::Affine(splats, mus) => {
+                        let mut w = vec![0.0f32; m];
+                        // Gather the tile's splats first: the cache misses of this tight loop
+                        // overlap, unlike misses taken inside the pixel loops.
+                        let local: Vec<(usize, PixelSplat)> = list
+                            .iter()
+                            .filter_map(|&gi| splats[gi as usize].map(|s| (gi as usize, s)))
+                            .collect();
+                        for &(gi, ref s) in &local {
+                            let dens = &g.densities[m * gi..m * gi + m];
+                            for c in 0..m {
+                                w[c] = (dens[c] as f64 * mus[gi]) as f32;
+                            }
+                            affine_rows(s, r, cut2 as f32, |p, _, _, e| {
+                                for c in 0..m {
+                                    let w = w[c];
+                                    for (b, e) in
+                                        buf[c * n + p..c * n + p + e.len()].iter_mut().zip(e)
+                                    {
+                                        *b += w * e;
+                                    }
+                                }
+                            });
+                        }
+                    }
+                    Prepared::Exact(splats) => {
+                        let mut acc = vec![0.0f64; m * n];
+                        for &gi in list {
+                            let gi = gi as usize;
+                            let Some((s, px)) = &splats[gi] else { continue };
+                            let dens = &g.densities[m * gi..m * gi + m];
+                            exact_pixels(px, r, |p, x, y| {
+                                let (o, d, len) = camera_ray(cam, x as f64, y as f64);
+                                let Some(rt) = ray_terms(&s.ray_gaussian, o, d) else {
+                                    return;
+                                };
+                                if rt.q > cut2 {
+                                    return;
+                                }
+                                let val = gm::line_integral_terms(&rt, len);
+                                for c in 0..m {
+                                    acc[c * n + p] += dens[c] as f64 * val;
+                                }
+                            });
+                        }
+                        for (b, a) in buf.iter_mut().zip(&acc) {
+                            *b = *a as f32;
+                        }
+                    }
+                }
+                buf
+            })
+            .collect();
+        let view_out = &mut out[v * m * plane..(v + 1) * m * plane];
+        for (t, buf) in tiles.iter().enumerate() {
+            let r = det.tile_rect(t);
+            let tw = r.1 - r.0;
+            let n = tw * (r.3 - r.2);
+            for c in 0..m {
+                for y in r.2..r.3 {
+                    let src = &buf[c * n + (y - r.2) * tw..c * n + (y - r.2 + 1) * tw];
+                    let dst = c * plane + y * det.cols + r.0;
+                    view_out[dst..dst + tw].copy_from_slice(src);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Backward projection: gradients of `L` given `grad = ∂L/∂image` (`[V, M, rows, cols]`).
+pub fn project_backward(
+    g: &GaussianSlices,
+    screen: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+    grad: &[f32],
+) -> ProjectGrads {
+    let k = g.len();
+    let m = g.channels;
+    let mut total = ProjectGrads {
+        means: vec![0.0; 3 * k],
+        scales: vec![0.0; 3 * k],
+        rotations: vec![0.0; 4 * k],
+        densities: vec![0.0; m * k],
+        screen: vec![0.0; 2 * k * cams.len()],
+    };
+    let Some(first) = cams.first() else {
+        return total;
+    };
+    let plane = first.rows * first.cols;
+    if k == 0 || plane == 0 || m == 0 {
+        return total;
+    }
+    let cut2 = opts.cutoff * opts.cutoff;
+    for (v, cam) in cams.iter().enumerate() {
+        let det = Detector::new(cam);
+        let near = opts.near_fraction * cam.sdd;
+        let gview = &grad[v * m * plane..(v + 1) * m * plane];
+        let (prep, boxes) = prepare(g, screen, v, cam, opts);
+        let bins = Bins::new([det.tiles_x, det.tiles_y, 1], &boxes);
+        // Per-slot partial sums. Affine: [S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy,
+        // Σ wG dy²] with S_c = Σ g_c G and w = Σ_c ρ_c g_c. Exact: [S_c.., g_centre(3), g_prec(6)].
+        let stride = match prep {
+            Prepared::Affine(..) => m + 5,
+            Prepared::Exact(..) => m + 9,
+        };
+        let mut slots = vec![0.0f64; bins.isects() * stride];
+        let per_tile = bins.split_per_tile(&mut slots, stride);
+        per_tile.into_par_iter().enumerate().for_each(|(t, out)| {
+            let r = det.tile_rect(t);
+            let tw = r.1 - r.0;
+            let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
+            // The tile's upstream gradient, gathered once: [M][pixels].
+            let n = tw * (r.3 - r.2);
+            let mut gt = vec![0.0f32; m * n];
+            for c in 0..m {
+                for y in r.2..r.3 {
+                    let src = c * plane + y * det.cols + r.0;
+                    gt[c * n + (y - r.2) * tw..c * n + (y - r.2 + 1) * tw]
+                        .copy_from_slice(&gview[src..src + tw]);
+                }
+            }
+            let mut lanes = vec![[0.0f32; TILE]; m];
+            let mut mom = [[0.0f32; TILE]; 5];
+            // Gather the tile's affine splats first (see the forward pass).
+            let local: Vec<Option<PixelSplat>> = match &prep {
+                Prepared::Affine(splats, _) => list.iter().map(|&gi| splats[gi as usize]).collect(),
+                Prepared::Exact(_) => Vec::new(),
+            };
+            for (j, &gi) in list.iter().enumerate() {
+                let gi = gi as usize;
+                let acc = &mut out[j * stride..(j + 1) * stride];
+                let dens = &g.densities[m * gi..m * gi + m];
+                match &prep {
+                    Prepared::Affine(..) => {
+                        let Some(s) = &local[j] else { continue };
+                        // Per-lane (pixel column) partial sums, reduced once per pair, so the row
+                        // loops are element-wise and vectorise: [S_0..S_{M-1}, x, y, xx, xy, yy].
+                        lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
+                        affine_rows(s, r, cut2 as f32, |p, x0, dy, e| {
+                            let k = e.len().min(TILE);
+                            let mut wge = [0.0f32; TILE];
+                            for c in 0..m {
+                                let gc = &gt[c * n + p..c * n + p + k];
+                                let rho = dens[c];
+                                let lane = &mut lanes[c];
+                                for j in 0..k {
+                                    let ge = gc[j] * e[j];
+                                    lane[j] += ge;
+                                    wge[j] += rho * ge;
+                                }
+                            }
+                            let dx0 = x0 as f32 - s.mx;
+                            let [lx, ly, lxx, lxy, lyy] = &mut mom;
+                            for j in 0..k {
+                                let w = wge[j];
+                                let dx = dx0 + IOTA[j];
+                                let wx = w * dx;
+                                lx[j] += wx;
+                                ly[j] += w * dy;
+                                lxx[j] += wx * dx;
+                                lxy[j] += wx * dy;
+                                lyy[j] += w * dy * dy;
+                            }
+                        });
+                        for c in 0..m {
+                            acc[c] = lanes[c].iter().map(|&v| v as f64).sum();
+                        }
+                        for q in 0..5 {
+                            acc[m + q] = mom[q].iter().map(|&v| v as f64).sum();
+                            mom[q] = [0.0; TILE];
+                        }
+                    }
+                    Prepared::Exact(splats) => {
+                        let Some((s, px)) = &splats[gi] else { continue };
+                        exact_pixels(px, r, |p, x, y| {
+                            let (o, d, len) = camera_ray(cam, x as f64, y as f64);
+                            let Some(rt) = ray_terms(&s.ray_gaussian, o, d) else {
+                                return;
+                            };
+                            if rt.q > cut2 {
+                                return;
+                            }
+                            let mut w = 0.0f64;
+                            for c in 0..m {
+                                w += dens[c] as f64 * gt[c * n + p] as f64;
+                            }
+                            let (val, g_c, g_p) =
+                                line_integral_backward(&s.ray_gaussian, o, d, len, w);
+                            for c in 0..m {
+                                acc[c] += gt[c * n + p] as f64 * val;
+                            }
+                            for q in 0..3 {
+                                acc[m + q] += g_c[q];
+                            }
+                            let gp = sym_pack(&g_p);
+                            for q in 0..6 {
+                                acc[m + 3 + q] += gp[q];
+                            }
+                        });
+                    }
+                }
+            }
+        });
+        // Gather per Gaussian and chain to its parameters.
+        type PerGaussian = ([f64; 10], Vec<f64>, [f64; 2]);
+        let results: Vec<Option<PerGaussian>> = (0..k)
+            .into_par_iter()
+            .map(|i| {
+                let isects =
+                    &bins.gaussian_isects[bins.gaussian_start[i]..bins.gaussian_start[i + 1]];
+                if isects.is_empty() {
+                    return None;
+                }
+                let mut sum = vec![0.0f64; stride];
+                for &slot in isects {
+                    for (a, b) in sum
+                        .iter_mut()
+                        .zip(&slots[slot * stride..(slot + 1) * stride])
+                    {
+                        *a += b;
+                    }
+                }
+                let geom: GaussianGeom = g.geom(i);
+                let dens = &g.densities[m * i..m * i + m];
+                let off = screen_offset(screen, k, v, i);
+                let (geo, g_dens, g_screen) = match &prep {
+                    Prepared::Affine(_, mus) => {
+                        let mu = mus[i];
+                        let g_mu: f64 = (0..m).map(|c| dens[c] as f64 * sum[c]).sum();
+                        let s = gm::splat(&geom, cam, off, opts.cutoff, near)?;
+                        let [ca, cb, cc] = s.conic_mat;
+                        let (wx, wy) = (sum[m], sum[m + 1]);
+                        let sg = SplatGrad {
+                            mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
+                            conic: [
+                                -0.5 * mu * sum[m + 2],
+                                -0.5 * mu * sum[m + 3],
+                                -0.5 * mu * sum[m + 4],
+                            ],
+                            mu: g_mu,
+                        };
+                        let geo = gm::splat_backward(&geom, cam, off, opts.cutoff, near, &sg);
+                        let g_dens: Vec<f64> = (0..m).map(|c| mu * sum[c]).collect();
+                        (geo, g_dens, sg.mean)
+                    }
+                    Prepared::Exact(_) => {
+                        let g_centre = [sum[m], sum[m + 1], sum[m + 2]];
+                        let gp: [f64; 6] = std::array::from_fn(|q| sum[m + 3 + q]);
+                        let (geo, g_screen) =
+                            exact_splat_backward(&geom, cam, off, g_centre, &sym_unpack(&gp));
+                        (geo, sum[..m].to_vec(), g_screen)
+                    }
+                };
+                let mut flat = [0.0f64; 10];
+                flat[..3].copy_from_slice(&geo.mean);
+                flat[3..6].copy_from_slice(&geo.scale);
+                flat[6..].copy_from_slice(&geo.quat);
+                let finite = flat
+                    .iter()
+                    .chain(&g_dens)
+                    .chain(&g_screen)
+                    .all(|x| x.is_finite());
+                finite.then_some((flat, g_dens, g_screen))
+            })
+            .collect();
+        for (i, r) in results.into_iter().enumerate() {
+            let Some((flat, g_dens, g_screen)) = r else {
+                continue;
+            };
+            for q in 0..3 {
+                total.means[3 * i + q] += flat[q] as f32;
+                total.scales[3 * i + q] += flat[3 + q] as f32;
+            }
+            for q in 0..4 {
+                total.rotations[4 * i + q] += flat[6 + q] as f32;
+            }
+            for c in 0..m {
+                total.densities[m * i + c] += g_dens[c] as f32;
+            }
+            let o = 2 * (v * k + i);
+            total.screen[o] = g_screen[0] as f32;
+            total.screen[o + 1] = g_screen[1] as f32;
+        }
+    }
+    total
+}
+
+/// Number of Gaussian–pixel evaluations one forward pass performs (affine: the pixels of each
+/// footprint's cut-off rows; exact: every pixel of the footprint box; summed over views) — the
+/// work unit of the benchmarks.
+pub fn count_project_evaluations(
+    g: &GaussianSlices,
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> usize {
+    let screen = vec![0.0f32; 2 * g.len() * cams.len()];
+    let mut total = 0;
+    for (v, cam) in cams.iter().enumerate() {
+        let (prep, _) = prepare(g, &screen, v, cam, opts);
+        total += match prep {
+            Prepared::Affine(splats, _) => {
+                let cut2 = (opts.cutoff * opts.cutoff) as f32;
+                let spans = |s: &PixelSplat| -> usize {
+                    (s.y0..s.y1)
+                        .filter_map(|y| {
+                            row_span(s, y as f32 - s.my, cut2, s.x0 as usize, s.x1 as usize)
+                        })
+                        .map(|(a, b)| b - a)
+                        .sum()
+                };
+                splats.iter().flatten().map(spans).sum::<usize>()
+            }
+            Prepared::Exact(splats) => splats
+                .iter()
+                .flatten()
+                .map(|(_, px)| (px[1] - px[0]) * (px[3] - px[2]))
+                .sum(),
+        };
+    }
+    total
+}

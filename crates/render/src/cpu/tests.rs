@@ -1,0 +1,543 @@
+//! Tile kernels against untiled f64 references, closed forms and central differences.
+
+use super::*;
+use crate::camera::{Camera, Projection};
+use crate::gaussian_math::{self as gm, GaussianGeom, SQRT_2PI};
+use crate::options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Owned Gaussian parameters for tests.
+#[derive(Clone, Debug)]
+pub(crate) struct Params {
+    pub means: Vec<f32>,
+    pub scales: Vec<f32>,
+    pub rotations: Vec<f32>,
+    pub densities: Vec<f32>,
+    pub channels: usize,
+}
+
+impl Params {
+    pub fn slices(&self) -> GaussianSlices<'_> {
+        GaussianSlices {
+            means: &self.means,
+            scales: &self.scales,
+            rotations: &self.rotations,
+            densities: &self.densities,
+            channels: self.channels,
+        }
+    }
+
+    pub fn random(k: usize, channels: usize, extent: f32, sigma: (f32, f32), seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut p = Params {
+            means: vec![],
+            scales: vec![],
+            rotations: vec![],
+            densities: vec![],
+            channels,
+        };
+        for _ in 0..k {
+            for _ in 0..3 {
+                p.means.push(rng.random_range(-extent..extent));
+                p.scales.push(rng.random_range(sigma.0..sigma.1));
+            }
+            for _ in 0..4 {
+                p.rotations.push(rng.random_range(-1.0..1.0));
+            }
+            for _ in 0..channels {
+                p.densities.push(rng.random_range(0.2..1.5));
+            }
+        }
+        p
+    }
+
+    /// All parameters as one f64 vector (means, scales, rotations, densities).
+    fn flat(&self) -> Vec<f64> {
+        self.means
+            .iter()
+            .chain(&self.scales)
+            .chain(&self.rotations)
+            .chain(&self.densities)
+            .map(|&v| v as f64)
+            .collect()
+    }
+}
+
+/// A cone view at angle θ with the Prism convention (source at DSO·(cos θ, sin θ, 0)).
+pub(crate) fn cone(theta: f64, rows: usize, cols: usize, pitch: f64) -> Camera {
+    let (s, c) = theta.sin_cos();
+    let (dso, dsd) = (400.0, 600.0);
+    Camera {
+        projection: Projection::Cone,
+        rotation: [[-s, c, 0.0], [0.0, 0.0, -1.0], [-c, -s, 0.0]],
+        translation: [0.0, 0.0, dso],
+        fx: dsd / pitch,
+        fy: dsd / pitch,
+        cx: (cols as f64 - 1.0) / 2.0,
+        cy: (rows as f64 - 1.0) / 2.0,
+        rows,
+        cols,
+        sdd: dsd,
+    }
+}
+
+pub(crate) fn parallel(theta: f64, rows: usize, cols: usize, pitch: f64) -> Camera {
+    Camera {
+        projection: Projection::Parallel,
+        fx: 1.0 / pitch,
+        fy: 1.0 / pitch,
+        ..cone(theta, rows, cols, pitch)
+    }
+}
+
+/// Untiled f64 reference projector: every Gaussian against every pixel.
+fn reference_project(
+    x: &[f64],
+    k: usize,
+    m: usize,
+    screen: &[f64],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f64> {
+    let geom = |i: usize| GaussianGeom {
+        mean: [x[3 * i], x[3 * i + 1], x[3 * i + 2]],
+        scale: [x[3 * k + 3 * i], x[3 * k + 3 * i + 1], x[3 * k + 3 * i + 2]],
+        quat: [
+            x[6 * k + 4 * i],
+            x[6 * k + 4 * i + 1],
+            x[6 * k + 4 * i + 2],
+            x[6 * k + 4 * i + 3],
+        ],
+    };
+    let dens = |i: usize, c: usize| x[10 * k + m * i + c];
+    let plane = cams[0].rows * cams[0].cols;
+    let mut out = vec![0.0; cams.len() * m * plane];
+    let cut2 = opts.cutoff * opts.cutoff;
+    for (v, cam) in cams.iter().enumerate() {
+        for i in 0..k {
+            let off = [screen[2 * (v * k + i)], screen[2 * (v * k + i) + 1]];
+            for row in 0..cam.rows {
+                for col in 0..cam.cols {
+                    let val = match opts.mode {
+                        ProjectionMode::Affine => {
+                            let Some(s) = gm::splat(
+                                &geom(i),
+                                cam,
+                                off,
+                                opts.cutoff,
+                                opts.near_fraction * cam.sdd,
+                            ) else {
+                                continue;
+                            };
+                            let q = s.conic.eval(col as f64 - s.mean[0], row as f64 - s.mean[1]);
+                            if q > cut2 {
+                                continue;
+                            }
+                            s.mu * (-0.5 * q).exp()
+                        }
+                        ProjectionMode::Exact => {
+                            let Some(s) = gm::exact_splat(&geom(i), cam, off, opts.cutoff) else {
+                                continue;
+                            };
+                            let (o, d, len) = gm::camera_ray(cam, col as f64, row as f64);
+                            let Some(rt) = gm::ray_terms(&s.ray_gaussian, o, d) else {
+                                continue;
+                            };
+                            if rt.q > cut2 {
+                                continue;
+                            }
+                            gm::line_integral_terms(&rt, len)
+                        }
+                    };
+                    for c in 0..m {
+                        out[(v * m + c) * plane + row * cam.cols + col] += dens(i, c) * val;
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0f64, |a, b| a.max(b.abs()))
+}
+
+#[test]
+fn isotropic_gaussian_on_the_central_ray() {
+    // Centre pixel = ρ·√(2π)·s to 1e-5 relative, cone and parallel, affine and exact.
+    for cam in [cone(0.3, 33, 33, 1.0), parallel(0.3, 33, 33, 1.0)] {
+        for mode in [ProjectionMode::Affine, ProjectionMode::Exact] {
+            let (rho, s) = (0.37f32, 2.5f32);
+            let p = Params {
+                means: vec![0.0; 3],
+                scales: vec![s; 3],
+                rotations: vec![1.0, 0.0, 0.0, 0.0],
+                densities: vec![rho],
+                channels: 1,
+            };
+            let opts = ProjectOptions {
+                mode,
+                ..Default::default()
+            };
+            let img = project_forward(&p.slices(), &[0.0; 2], &[cam], &opts);
+            let centre = img[16 * 33 + 16] as f64;
+            let want = rho as f64 * SQRT_2PI * s as f64;
+            let err = (centre - want).abs() / want;
+            eprintln!(
+                "{:?} {mode:?}: centre {centre:.7} vs ρ√(2π)s {want:.7}, rel err {err:.1e}",
+                cam.projection
+            );
+            assert!(err < 1e-5);
+        }
+    }
+}
+
+#[test]
+fn tiled_forward_matches_untiled_reference() {
+    // Many Gaussians spanning tile borders, two channels, two views, random screen offsets.
+    let p = Params::random(60, 2, 20.0, (0.8, 4.0), 7);
+    let k = 60;
+    let cams = [cone(0.2, 40, 37, 0.9), cone(1.9, 40, 37, 0.9)];
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let screen: Vec<f32> = (0..2 * k * 2)
+        .map(|_| rng.random_range(-0.5..0.5))
+        .collect();
+    let screen64: Vec<f64> = screen.iter().map(|&v| v as f64).collect();
+    for opts in [
+        ProjectOptions::default(),
+        ProjectOptions::exact(),
+        ProjectOptions {
+            cutoff: 5.0,
+            ..Default::default()
+        },
+    ] {
+        let img = project_forward(&p.slices(), &screen, &cams, &opts);
+        let want = reference_project(&p.flat(), k, 2, &screen64, &cams, &opts);
+        let scale = max_abs(&want);
+        let err = img
+            .iter()
+            .zip(&want)
+            .fold(0.0f64, |a, (x, y)| a.max((*x as f64 - y).abs()))
+            / scale;
+        assert!(err < 1e-5, "{opts:?}: {err:e}");
+    }
+    let pp = [parallel(0.2, 40, 37, 0.9), parallel(2.5, 40, 37, 0.9)];
+    let img = project_forward(&p.slices(), &screen, &pp, &ProjectOptions::default());
+    let want = reference_project(&p.flat(), k, 2, &screen64, &pp, &ProjectOptions::default());
+    let err = img
+        .iter()
+        .zip(&want)
+        .fold(0.0f64, |a, (x, y)| a.max((*x as f64 - y).abs()))
+        / max_abs(&want);
+    assert!(err < 1e-5, "parallel: {err:e}");
+}
+
+#[test]
+fn affine_versus_exact_drift() {
+    // TIGRE-like geometry (DSO 1000, DSD 1536, 1 mm voxels), an anisotropic Gaussian 60–80 mm off
+    // the axis; generous cut-off so both modes keep their full tails. The affine model's error
+    // relative to the peak must stay below the drift of "all rays parallel to the central ray"
+    // measured for this geometry (7.8e-4 at σ≈2 mm, 3.7e-3 at σ≈10 mm): we require ≤ 7.8e-4 for
+    // σ = 1 and ≤ 3.7e-3 for σ = 5 and 10 (σ is the largest of the three axis scales).
+    let (dso, dsd, pitch) = (1000.0, 1536.0, 0.8);
+    for (sigma, bound) in [(1.0f32, 7.8e-4), (5.0, 3.7e-3), (10.0, 3.7e-3)] {
+        let n = 32usize;
+        let pitch = pitch * (sigma as f64).max(1.0) * 0.5;
+        let mut cam = cone(0.0, n, n, pitch);
+        cam.translation = [0.0, 0.0, dso];
+        cam.fx = dsd / pitch;
+        cam.fy = dsd / pitch;
+        cam.sdd = dsd;
+        let mean = [20.0f32, 80.0, 60.0];
+        // Centre the detector window on the Gaussian's projection.
+        let c = cam.to_camera(mean.map(|v| v as f64));
+        cam.cx = (n as f64 - 1.0) / 2.0 - cam.fx * c[0] / c[2];
+        cam.cy = (n as f64 - 1.0) / 2.0 - cam.fy * c[1] / c[2];
+        let p = Params {
+            means: mean.to_vec(),
+            scales: vec![sigma, 0.6 * sigma, 0.8 * sigma],
+            rotations: vec![0.9, 0.2, -0.3, 0.1],
+            densities: vec![1.0],
+            channels: 1,
+        };
+        let affine = project_forward(
+            &p.slices(),
+            &[0.0; 2],
+            &[cam],
+            &ProjectOptions {
+                cutoff: 7.0,
+                ..Default::default()
+            },
+        );
+        let exact = project_forward(
+            &p.slices(),
+            &[0.0; 2],
+            &[cam],
+            &ProjectOptions {
+                cutoff: 7.0,
+                ..ProjectOptions::exact()
+            },
+        );
+        let peak = exact.iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
+        let err = affine
+            .iter()
+            .zip(&exact)
+            .fold(0.0f64, |a, (x, y)| a.max((*x - *y).abs() as f64))
+            / peak;
+        eprintln!("σ = {sigma} mm: max |affine − exact| / peak = {err:.2e} (bound {bound:.1e})");
+        assert!(err < bound, "σ = {sigma}: {err:e}");
+    }
+}
+
+/// Loss `Σ r·image` through the f64 reference, for central differences.
+fn ref_loss(
+    x: &[f64],
+    k: usize,
+    m: usize,
+    screen: &[f64],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+    r: &[f32],
+) -> f64 {
+    reference_project(x, k, m, screen, cams, opts)
+        .iter()
+        .zip(r)
+        .map(|(a, b)| a * *b as f64)
+        .sum()
+}
+
+fn check_project_gradients(p: &Params, cams: &[Camera], opts: &ProjectOptions, seed: u64) {
+    let k = p.means.len() / 3;
+    let m = p.channels;
+    let plane = cams[0].rows * cams[0].cols;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let r: Vec<f32> = (0..cams.len() * m * plane)
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let screen: Vec<f32> = (0..2 * k * cams.len())
+        .map(|_| rng.random_range(-0.3..0.3))
+        .collect();
+    let screen64: Vec<f64> = screen.iter().map(|&v| v as f64).collect();
+    let grads = project_backward(&p.slices(), &screen, cams, opts, &r);
+    let x0 = p.flat();
+    let h = 1e-6;
+    let fd = |x: &[f64], s: &[f64], i: usize, on_screen: bool| {
+        let (mut xp, mut xm, mut sp, mut sm) = (x.to_vec(), x.to_vec(), s.to_vec(), s.to_vec());
+        if on_screen {
+            sp[i] += h;
+            sm[i] -= h;
+        } else {
+            xp[i] += h;
+            xm[i] -= h;
+        }
+        (ref_loss(&xp, k, m, &sp, cams, opts, &r) - ref_loss(&xm, k, m, &sm, cams, opts, &r))
+            / (2.0 * h)
+    };
+    let groups: [(&str, &[f32], usize); 5] = [
+        ("means", &grads.means, 0),
+        ("scales", &grads.scales, 3 * k),
+        ("rotations", &grads.rotations, 6 * k),
+        ("densities", &grads.densities, 10 * k),
+        ("screen", &grads.screen, usize::MAX),
+    ];
+    for (name, analytic, start) in groups {
+        let numeric: Vec<f64> = (0..analytic.len())
+            .map(|i| {
+                if start == usize::MAX {
+                    fd(&x0, &screen64, i, true)
+                } else {
+                    fd(&x0, &screen64, start + i, false)
+                }
+            })
+            .collect();
+        // f32 pixel sums of ≲ 10³ terms: relative rounding ≲ 1e-5 of the group's largest entry.
+        let scale = max_abs(&numeric);
+        assert!(scale > 0.0, "{name}: zero gradient — test is vacuous");
+        for (i, (a, n)) in analytic.iter().zip(&numeric).enumerate() {
+            assert!(
+                (*a as f64 - n).abs() <= 2e-4 * scale,
+                "{:?} {:?} {name}[{i}]: analytic {a} vs central difference {n} (scale {scale})",
+                cams[0].projection,
+                opts.mode
+            );
+        }
+    }
+}
+
+#[test]
+fn projection_gradients_match_central_differences() {
+    // Anisotropic rotated Gaussians, two views, two channels. Cut-off 8σ puts the cut where the
+    // Gaussian is e^{−32} ≈ 1e-14 of its peak, so the loss is smooth at the f64 FD resolution.
+    let p = Params::random(3, 2, 6.0, (1.5, 4.0), 11);
+    for cams in [
+        [cone(0.4, 20, 18, 1.2), cone(2.1, 20, 18, 1.2)],
+        [parallel(0.4, 20, 18, 1.0), parallel(2.1, 20, 18, 1.0)],
+    ] {
+        for mode in [ProjectionMode::Affine, ProjectionMode::Exact] {
+            let opts = ProjectOptions {
+                mode,
+                cutoff: 8.0,
+                ..Default::default()
+            };
+            check_project_gradients(&p, &cams, &opts, 5);
+        }
+    }
+}
+
+#[test]
+fn exact_gradients_near_the_source() {
+    // A Gaussian 20 mm in front of the source: the segment's erf factors carry the gradient.
+    let mut p = Params::random(2, 1, 3.0, (2.0, 3.0), 13);
+    let cam = cone(0.0, 12, 12, 6.0);
+    p.means[0] = 380.0; // DSO 400 along +x at θ = 0
+    check_project_gradients(
+        &p,
+        &[cam],
+        &ProjectOptions {
+            cutoff: 8.0,
+            ..ProjectOptions::exact()
+        },
+        9,
+    );
+}
+
+#[test]
+fn voxelize_matches_direct_evaluation() {
+    let p = Params::random(40, 2, 12.0, (0.7, 5.0), 21);
+    // A 32³ TV-patch-like sub-box with anisotropic voxels and an off-centre grid.
+    let grid = VoxelGrid {
+        dims: [32, 30, 28],
+        voxel: [0.8, 0.9, 1.1],
+        offset: [1.5, -2.0, 0.7],
+    };
+    let vol = voxelize_forward(&p.slices(), &grid, &VoxelizeOptions::default());
+    let want = reference_voxelize_f64(&p.flat(), 40, 2, &grid, 3.0);
+    let mut worst = 0.0f64;
+    for (a, b) in vol.iter().zip(&want) {
+        worst = worst.max((*a as f64 - b).abs() / b.abs().max(1e-30));
+    }
+    // Per voxel, relative: f32 evaluation of ≤ a few dozen terms.
+    eprintln!("voxelize vs direct: max relative error {worst:.1e}");
+    assert!(worst < 1e-5, "{worst:e}");
+}
+
+#[test]
+fn voxelize_gradients_match_central_differences() {
+    let p = Params::random(3, 2, 3.0, (1.0, 2.5), 31);
+    let k = 3;
+    let grid = VoxelGrid {
+        dims: [14, 12, 10],
+        voxel: [0.7, 0.8, 0.9],
+        offset: [0.3, -0.2, 0.1],
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let r: Vec<f32> = (0..2 * grid.len())
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let opts = VoxelizeOptions { cutoff: 8.0 };
+    let grads = voxelize_backward(&p.slices(), &grid, &opts, &r);
+    let loss = |x: &[f64]| -> f64 {
+        reference_voxelize_f64(x, k, 2, &grid, 8.0)
+            .iter()
+            .zip(&r)
+            .map(|(a, b)| a * *b as f64)
+            .sum()
+    };
+    let x0 = p.flat();
+    let h = 1e-6;
+    let analytic: Vec<f32> = grads
+        .means
+        .iter()
+        .chain(&grads.scales)
+        .chain(&grads.rotations)
+        .chain(&grads.densities)
+        .copied()
+        .collect();
+    let names = [
+        ("means", 0, 3 * k),
+        ("scales", 3 * k, 6 * k),
+        ("rotations", 6 * k, 10 * k),
+        ("densities", 10 * k, 12 * k),
+    ];
+    for (name, lo, hi) in names {
+        let numeric: Vec<f64> = (lo..hi)
+            .map(|i| {
+                let (mut a, mut b) = (x0.clone(), x0.clone());
+                a[i] += h;
+                b[i] -= h;
+                (loss(&a) - loss(&b)) / (2.0 * h)
+            })
+            .collect();
+        let scale = max_abs(&numeric);
+        for (j, n) in numeric.iter().enumerate() {
+            let a = analytic[lo + j] as f64;
+            assert!(
+                (a - n).abs() <= 2e-4 * scale,
+                "{name}[{j}]: analytic {a} vs central difference {n}"
+            );
+        }
+    }
+}
+
+/// Untiled f64 voxelizer: every Gaussian at every voxel centre, parameters as in `Params::flat`.
+fn reference_voxelize_f64(
+    x: &[f64],
+    k: usize,
+    m: usize,
+    grid: &VoxelGrid,
+    cutoff: f64,
+) -> Vec<f64> {
+    let [nx, ny, nz] = grid.dims;
+    let mut out = vec![0.0; m * grid.len()];
+    for i in 0..k {
+        let geom = GaussianGeom {
+            mean: [x[3 * i], x[3 * i + 1], x[3 * i + 2]],
+            scale: [x[3 * k + 3 * i], x[3 * k + 3 * i + 1], x[3 * k + 3 * i + 2]],
+            quat: [
+                x[6 * k + 4 * i],
+                x[6 * k + 4 * i + 1],
+                x[6 * k + 4 * i + 2],
+                x[6 * k + 4 * i + 3],
+            ],
+        };
+        let sh = gm::shape3(&geom).unwrap();
+        for z in 0..nz {
+            for y in 0..ny {
+                for xx in 0..nx {
+                    let c = [grid.centre(0, xx), grid.centre(1, y), grid.centre(2, z)];
+                    let d = [
+                        c[0] - geom.mean[0],
+                        c[1] - geom.mean[1],
+                        c[2] - geom.mean[2],
+                    ];
+                    let q = gm::dot(d, gm::mat_vec(&sh.prec, d));
+                    if q <= cutoff * cutoff {
+                        for ch in 0..m {
+                            out[ch * grid.len() + (z * ny + y) * nx + xx] +=
+                                x[10 * k + m * i + ch] * (-0.5 * q).exp();
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn fast_exp_is_accurate_and_guarded() {
+    let mut worst = 0.0f64;
+    let mut x = -87.0f32;
+    while x <= 0.0 {
+        let want = (x as f64).exp();
+        worst = worst.max((exp_neg(x) as f64 - want).abs() / want);
+        x += 0.0137;
+    }
+    assert!(worst < 1e-6, "{worst:e}");
+    assert_eq!(exp_neg(0.0), 1.0);
+    assert!(exp_neg(f32::NEG_INFINITY) < 1e-37);
+    assert!(exp_neg(-1e30) >= 0.0);
+    assert!(exp_neg(f32::NAN).is_nan());
+}

@@ -1,0 +1,291 @@
+//! The Burn backend extension and the backend-free functions trainers call.
+//!
+//! Tensor layouts (all `f32`): means `[K, 3]`, scales `[K, 3]` (standard deviations, length units,
+//! positive), rotations `[K, 4]` (quaternions `w, x, y, z`, normalised inside the op: the gradient
+//! is with respect to the raw value), densities `[K, M]` (M channels sharing the geometry, e.g. the
+//! energy channels of a spectral scan), screen offsets `[V, K, 2]` (pixels, see [`screen_probe`]).
+//! Outputs: projections `[V, M, rows, cols]` (line integrals), volumes `[M, nz, ny, nx]`.
+//! Cameras, grids and options are plain host values passed to the op as ordinary arguments.
+
+// The NdArray selector names burn-ndarray, deprecated in Burn 0.22 (Flex is its successor).
+#![allow(deprecated)]
+
+use burn::backend::{Backend, Dispatch, backend_extension, tensor::FloatTensor};
+use burn::tensor::{DType, Tensor};
+
+use crate::camera::Camera;
+use crate::error::{RenderError, Result};
+use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
+
+/// Differentiable Gaussian projection and voxelization. Backward kernels are ops of their own so
+/// every backend (and later the CubeCL port) provides them next to the forward.
+#[backend_extension(NdArray: cfg(feature = "ndarray"), Flex: cfg(feature = "flex"), Autodiff)]
+pub trait GaussianOps: Backend {
+    /// Line-integral images `[V, M, rows, cols]` of the Gaussians in every camera.
+    #[allow(clippy::too_many_arguments)]
+    fn gaussian_project(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        screen: FloatTensor<Self>,
+        cameras: Vec<Camera>,
+        options: ProjectOptions,
+    ) -> FloatTensor<Self>;
+
+    /// Gradients `(means, scales, rotations, densities, screen)` of `⟨grad, project(..)⟩`.
+    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
+    fn gaussian_project_backward(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        screen: FloatTensor<Self>,
+        cameras: Vec<Camera>,
+        options: ProjectOptions,
+        grad: FloatTensor<Self>,
+    ) -> (
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+    );
+
+    /// Density volumes `[M, nz, ny, nx]` on `grid`.
+    fn gaussian_voxelize(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        grid: VoxelGrid,
+        options: VoxelizeOptions,
+    ) -> FloatTensor<Self>;
+
+    /// Gradients `(means, scales, rotations, densities)` of `⟨grad, voxelize(..)⟩`.
+    #[allow(clippy::type_complexity)]
+    fn gaussian_voxelize_backward(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        grid: VoxelGrid,
+        options: VoxelizeOptions,
+        grad: FloatTensor<Self>,
+    ) -> (
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+    );
+}
+
+/// The Gaussian parameters as Burn tensors (see the module docs for layouts).
+#[derive(Clone, Debug)]
+pub struct Gaussians {
+    pub means: Tensor<2>,
+    pub scales: Tensor<2>,
+    pub rotations: Tensor<2>,
+    pub densities: Tensor<2>,
+}
+
+impl Gaussians {
+    /// Number of Gaussians K.
+    pub fn len(&self) -> usize {
+        self.means.dims()[0]
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Number of density channels M.
+    pub fn channels(&self) -> usize {
+        self.densities.dims()[1]
+    }
+
+    /// Check shapes and dtypes; returns `(K, M)`.
+    pub fn validate(&self) -> Result<(usize, usize)> {
+        let k = self.means.dims()[0];
+        let check = |name: &str, t: &Tensor<2>, cols: Option<usize>| -> Result<()> {
+            let [rows, c] = t.dims();
+            if rows != k {
+                return Err(RenderError::invalid(
+                    name,
+                    format!("has {rows} rows, means has {k}"),
+                ));
+            }
+            if let Some(want) = cols
+                && c != want
+            {
+                return Err(RenderError::invalid(
+                    name,
+                    format!("must be [K, {want}], got [{rows}, {c}]"),
+                ));
+            }
+            if t.dtype() != DType::F32 {
+                return Err(RenderError::invalid(
+                    name,
+                    format!("must be f32, got {:?}", t.dtype()),
+                ));
+            }
+            Ok(())
+        };
+        check("means", &self.means, Some(3))?;
+        check("scales", &self.scales, Some(3))?;
+        check("rotations", &self.rotations, Some(4))?;
+        check("densities", &self.densities, None)?;
+        let m = self.densities.dims()[1];
+        if m == 0 {
+            return Err(RenderError::invalid(
+                "densities",
+                "needs at least one channel column",
+            ));
+        }
+        Ok((k, m))
+    }
+}
+
+/// Check the cameras of one call: at least one, all finite, one detector size.
+pub fn validate_cameras(cameras: &[Camera]) -> Result<()> {
+    let Some(first) = cameras.first() else {
+        return Err(RenderError::invalid(
+            "cameras",
+            "at least one view is needed",
+        ));
+    };
+    for (i, c) in cameras.iter().enumerate() {
+        let field = |f: &str| format!("cameras[{i}].{f}");
+        if c.rows > 1 << 20 || c.cols > 1 << 20 {
+            return Err(RenderError::invalid(
+                field("rows/cols"),
+                format!(
+                    "{}×{} exceeds the 2^20 pixel limit per axis",
+                    c.rows, c.cols
+                ),
+            ));
+        }
+        if c.rows == 0 || c.cols == 0 {
+            return Err(RenderError::invalid(
+                field("rows/cols"),
+                "detector must have at least one pixel",
+            ));
+        }
+        if (c.rows, c.cols) != (first.rows, first.cols) {
+            return Err(RenderError::invalid(
+                field("rows/cols"),
+                format!(
+                    "{}×{} differs from view 0's {}×{}",
+                    c.rows, c.cols, first.rows, first.cols
+                ),
+            ));
+        }
+        for (name, v) in [("fx", c.fx), ("fy", c.fy), ("sdd", c.sdd)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(RenderError::invalid(
+                    field(name),
+                    format!("must be finite and > 0, got {v}"),
+                ));
+            }
+        }
+        if !(c.cx.is_finite() && c.cy.is_finite()) {
+            return Err(RenderError::invalid(field("cx/cy"), "must be finite"));
+        }
+        if !c
+            .rotation
+            .iter()
+            .flatten()
+            .chain(&c.translation)
+            .all(|v| v.is_finite())
+        {
+            return Err(RenderError::invalid(
+                field("rotation/translation"),
+                "must be finite",
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Project Gaussians into every camera: `[V, M, rows, cols]` line integrals.
+///
+/// `screen` is an optional `[V, K, 2]` tensor of offsets (pixels) added to the projected centres;
+/// pass a [`screen_probe`] to read the densification statistic after `backward`. Differentiable
+/// with respect to every tensor input through ordinary Burn autodiff.
+pub fn project(
+    gaussians: &Gaussians,
+    cameras: &[Camera],
+    screen: Option<&Tensor<3>>,
+    options: &ProjectOptions,
+) -> Result<Tensor<4>> {
+    let (k, _) = gaussians.validate()?;
+    validate_cameras(cameras)?;
+    options.validate()?;
+    let v = cameras.len();
+    let screen = match screen {
+        Some(s) => {
+            if s.dims() != [v, k, 2] {
+                return Err(RenderError::invalid(
+                    "screen",
+                    format!("must be [{v}, {k}, 2], got {:?}", s.dims()),
+                ));
+            }
+            if s.dtype() != DType::F32 {
+                return Err(RenderError::invalid("screen", "must be f32"));
+            }
+            s.clone()
+        }
+        None => Tensor::<3>::zeros([v, k, 2], &gaussians.means.device()),
+    };
+    let g = gaussians.clone();
+    Ok(Tensor::from_dispatch(Dispatch::gaussian_project(
+        g.means.into_dispatch(),
+        g.scales.into_dispatch(),
+        g.rotations.into_dispatch(),
+        g.densities.into_dispatch(),
+        screen.into_dispatch(),
+        cameras.to_vec(),
+        *options,
+    )))
+}
+
+/// Evaluate the Gaussians' density at the voxel centres of `grid`: `[M, nz, ny, nx]`.
+pub fn voxelize(
+    gaussians: &Gaussians,
+    grid: &VoxelGrid,
+    options: &VoxelizeOptions,
+) -> Result<Tensor<4>> {
+    gaussians.validate()?;
+    grid.validate()?;
+    options.validate()?;
+    let g = gaussians.clone();
+    Ok(Tensor::from_dispatch(Dispatch::gaussian_voxelize(
+        g.means.into_dispatch(),
+        g.scales.into_dispatch(),
+        g.rotations.into_dispatch(),
+        g.densities.into_dispatch(),
+        *grid,
+        *options,
+    )))
+}
+
+/// A zero `[views, K, 2]` screen-offset tensor that requires grad: pass it to [`project`], and
+/// after `backward` its gradient is `∂L/∂(projected centre)` per view and Gaussian in pixels.
+pub fn screen_probe(gaussians: &Gaussians, views: usize) -> Tensor<3> {
+    Tensor::<3>::zeros([views, gaussians.len(), 2], &gaussians.means.device()).require_grad()
+}
+
+/// The densification statistic: `Σ_views ‖∂L/∂(projected centre)‖₂` per Gaussian (pixels⁻¹),
+/// from a [`screen_probe`]'s gradient `[V, K, 2]`. (Upstream 3DGS measures it in NDC units, i.e.
+/// this value times half the detector size in pixels.)
+pub fn screen_grad_norm(grad: &Tensor<3>) -> Tensor<1> {
+    let [_, k, _] = grad.dims();
+    (grad.clone() * grad.clone())
+        .sum_dim(2)
+        .sqrt()
+        .sum_dim(0)
+        .reshape([k])
+}
+
+#[cfg(test)]
+mod tests;
