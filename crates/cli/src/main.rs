@@ -4,6 +4,7 @@
 //! `prism-core`; no algorithm lives here.
 
 mod info;
+mod recon;
 mod simulate;
 
 use clap::{Parser, Subcommand};
@@ -22,6 +23,8 @@ enum Command {
     Simulate(simulate::Args),
     /// Print a scene's geometry, channels, availability and value ranges.
     Info(info::Args),
+    /// Reconstruct every channel with a classic method (fdk | sart | cgls) into a run directory.
+    Recon(recon::ReconArgs),
 }
 
 fn main() -> ExitCode {
@@ -29,6 +32,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Simulate(args) => simulate::run(args),
         Command::Info(args) => info::run(args),
+        Command::Recon(args) => recon::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

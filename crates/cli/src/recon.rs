@@ -24,7 +24,10 @@ pub fn run(args: ReconArgs) -> anyhow::Result<()> {
     match recon::run(&config, &scene, &args.out)? {
         Some(report) => {
             for c in &report.channels {
-                eprintln!("{:>12}  PSNR {:6.2} dB  SSIM {:.4}", c.label, c.psnr, c.ssim);
+                eprintln!(
+                    "{:>12}  PSNR {:6.2} dB  SSIM {:.4}",
+                    c.label, c.psnr, c.ssim
+                );
             }
             eprintln!(
                 "{:>12}  PSNR {:6.2} dB  SSIM {:.4}  ({:.2} s) → {}",
@@ -35,7 +38,10 @@ pub fn run(args: ReconArgs) -> anyhow::Result<()> {
                 args.out.join(METRICS_FILE).display()
             );
         }
-        None => eprintln!("the scene has no reference volumes; volumes written to {}", args.out.display()),
+        None => eprintln!(
+            "the scene has no reference volumes; volumes written to {}",
+            args.out.display()
+        ),
     }
     Ok(())
 }
