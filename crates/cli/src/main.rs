@@ -3,6 +3,7 @@
 //! Each subcommand lives in its own module and only parses arguments, reports progress and calls
 //! `prism-core`; no algorithm lives here.
 
+mod bench;
 mod info;
 mod recon;
 mod simulate;
@@ -25,6 +26,8 @@ enum Command {
     Info(info::Args),
     /// Reconstruct every channel with a classic method (fdk | sart | cgls) into a run directory.
     Recon(recon::ReconArgs),
+    /// Benchmarks that print one JSON object (`prism bench classic`).
+    Bench(bench::Args),
 }
 
 fn main() -> ExitCode {
@@ -33,6 +36,7 @@ fn main() -> ExitCode {
         Command::Simulate(args) => simulate::run(args),
         Command::Info(args) => info::run(args),
         Command::Recon(args) => recon::run(args),
+        Command::Bench(args) => bench::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

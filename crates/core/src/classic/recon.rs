@@ -111,13 +111,8 @@ impl ReconConfig {
 
     /// Parse and validate YAML; errors name the field and `file`.
     pub fn from_yaml(text: &str, file: &Path) -> Result<Self> {
-        let cfg: ReconConfig = serde_yaml_ng::from_str(text).map_err(|e| {
-            let msg = e.to_string();
-            match msg.split_once(": ") {
-                Some((field, rest)) if !field.contains(' ') => Error::field(file, field, rest),
-                _ => Error::field(file, ".", msg),
-            }
-        })?;
+        let cfg: ReconConfig =
+            serde_yaml_ng::from_str(text).map_err(|e| crate::yaml::error(file, &e))?;
         cfg.validate().map_err(|e| e.in_file(file))?;
         Ok(cfg)
     }

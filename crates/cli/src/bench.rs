@@ -1,0 +1,68 @@
+//! `prism bench classic`: the classic-CT benchmark (ours vs RTK in one run), one JSON object on
+//! stdout. RTK runs through `$PRISM_PYTHON` (default `python3`) when `itk-rtk` is importable and
+//! is skipped with a message otherwise.
+
+use prism_core::classic::bench::{BenchOptions, ordering, run as run_classic};
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    which: Which,
+}
+
+#[derive(clap::Subcommand)]
+enum Which {
+    /// Joseph FP/BP, FDK, SART, CGLS at 128³ / 256² / 50 views on the phantom, with RTK's side.
+    Classic(ClassicArgs),
+}
+
+#[derive(clap::Args)]
+struct ClassicArgs {
+    /// 64³ / 128², no dense FDK, no 256³ error, no ordering check, one repeat.
+    #[arg(long)]
+    quick: bool,
+    /// Skip RTK.
+    #[arg(long)]
+    no_rtk: bool,
+    /// Skip the SART > CGLS > FDK check on phantom-3mono.
+    #[arg(long)]
+    no_ordering: bool,
+    /// Skip the forward-projection error at 256³.
+    #[arg(long)]
+    no_256: bool,
+    /// Only the SART > CGLS > FDK check.
+    #[arg(long)]
+    ordering_only: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let Which::Classic(a) = args.which;
+    let value = if a.ordering_only {
+        ordering()?
+    } else {
+        let mut opts = BenchOptions::default();
+        if a.quick {
+            opts = BenchOptions {
+                n: 64,
+                det: 128,
+                full_views: 0,
+                fp_256: false,
+                ordering: false,
+                repeats: 1,
+                ..opts
+            };
+        }
+        if a.no_rtk {
+            opts.python = None;
+        }
+        if a.no_ordering {
+            opts.ordering = false;
+        }
+        if a.no_256 {
+            opts.fp_256 = false;
+        }
+        run_classic(&opts)?
+    };
+    println!("{}", serde_json::to_string_pretty(&value)?);
+    Ok(())
+}
