@@ -60,7 +60,10 @@ pub struct ReconConfig {
     /// FDK ramp window: ram-lak (default), shepp-logan, cosine, hamming, hann.
     #[serde(default)]
     pub filter: Window,
-    /// Epochs (SART family, default 10) or iterations (CGLS, default 20); ignored by FDK.
+    /// Epochs (SART family, default 3) or iterations (CGLS, default 10); ignored by FDK.
+    /// Both methods semi-converge on sparse views (the data are not in the range of the discrete
+    /// projector): on phantom-3mono at 50 views the mean PSNR was SART 39.5 / 35.3 / 33.7 dB at
+    /// 3 / 10 / 20 epochs and CGLS 32.9 / 36.3 / 35.2 / 33.8 dB at 5 / 10 / 15 / 20 iterations.
     #[serde(default)]
     pub iterations: Option<usize>,
     /// SART family: views per block (1 = SART, default; ≥ views = SIRT).
@@ -129,8 +132,8 @@ impl ReconConfig {
         match (self.method, self.iterations) {
             (Method::Fdk, _) => 0,
             (_, Some(n)) => n,
-            (Method::Sart, None) => 10,
-            (Method::Cgls, None) => 20,
+            (Method::Sart, None) => 3,
+            (Method::Cgls, None) => 10,
         }
     }
 
