@@ -7,13 +7,14 @@
 //! for parallel beam the weight is 1. This is *not* the adjoint of the Joseph projector (use
 //! [`super::Joseph::adjoint`] for that); it is the backprojection of the FDK formula.
 //!
-//! Parallel over z-slices; along x the camera coordinates are updated incrementally, so each
-//! update costs one reciprocal, a bilinear fetch and a multiply-add.
+//! Parallel over z-chunks. The rotation axis is z, so along a voxel column in z the detector
+//! column, the depth and the weight stay fixed and the detector row advances by a constant step:
+//! each update costs a row step, a bilinear fetch and a multiply-add.
 
 use super::joseph::floorish;
 use crate::geometry::{Beam, Camera, Geometry, Projection};
 use crate::{Error, Result};
-use ndarray::{Array3, ArrayView2, ArrayView3, Axis};
+use ndarray::{Array3, ArrayView3, Axis};
 use rayon::prelude::*;
 
 /// Voxel-driven backprojection of `projections` (`[k][row][col]`, slab `k` from view
@@ -48,98 +49,126 @@ pub fn backproject_voxel(
     let cams: Vec<Camera> = views.iter().map(|&v| geometry.camera(v)).collect();
     let g = &geometry.volume;
     let cone = geometry.beam == Beam::Cone;
-    let dso = geometry.dso;
+    let dso = geometry.dso as f32;
+    let slice_len = g.nx * g.ny;
+    // Contiguous z-chunks, a few per thread for balance.
+    let chunk_z = g.nz.div_ceil(4 * rayon::current_num_threads()).max(1);
     let mut out = Array3::<f32>::zeros(g.shape_zyx());
     out.as_slice_mut()
         .expect("fresh array")
-        .par_chunks_mut(g.nx * g.ny)
+        .par_chunks_mut(chunk_z * slice_len)
         .enumerate()
-        .for_each(|(iz, slice)| {
+        .for_each(|(c, chunk)| {
+            let z0 = c * chunk_z;
+            let nz = chunk.len() / slice_len;
             for (k, cam) in cams.iter().enumerate() {
                 let img = projections.index_axis(Axis(0), k);
-                let s = scale[k] as f32;
+                let img = img.as_slice().expect("standard layout");
+                // The rotation axis is z (docs/geometry.md): moving a voxel along z moves it along
+                // y_c only, so u, the depth and the 1/U² weight are constant along a z-column and
+                // the detector row is affine in z.
+                debug_assert!(cam.rotation[0][2] == 0.0 && cam.rotation[2][2] == 0.0);
+                let dyc = (cam.rotation[1][2] * g.dz) as f32;
                 for iy in 0..g.ny {
-                    let p0 = cam.to_camera(g.voxel_centre(0, iy, iz));
-                    // Camera-frame step for one voxel along +x.
-                    let r = &cam.rotation;
-                    let dx = [r[0][0] * g.dx, r[1][0] * g.dx, r[2][0] * g.dx];
-                    let line = &mut slice[iy * g.nx..(iy + 1) * g.nx];
-                    accumulate_line(line, img, cam, p0, dx, cone, dso, s);
+                    for ix in 0..g.nx {
+                        let p = cam.to_camera(g.voxel_centre(ix, iy, z0));
+                        let column = Column::new(cam, p, dyc, cone, dso);
+                        if let Some(column) = column {
+                            column.accumulate(
+                                img,
+                                cam,
+                                scale[k] as f32,
+                                nz,
+                                &mut chunk[iy * g.nx + ix..],
+                                slice_len,
+                            );
+                        }
+                    }
                 }
             }
         });
     Ok(out)
 }
 
-/// Accumulate one x-line of voxels from one view. Batches of voxels are projected first (f32, a
-/// loop the compiler vectorises), then the detector is sampled.
-#[allow(clippy::too_many_arguments)]
-#[inline(always)]
-fn accumulate_line(
-    line: &mut [f32],
-    img: ArrayView2<f32>,
-    cam: &Camera,
-    p0: [f64; 3],
-    dx: [f64; 3],
-    cone: bool,
-    dso: f64,
-    scale: f32,
-) {
-    const BATCH: usize = 64;
-    let (rows, cols) = (cam.rows, cam.cols);
-    let img = img.as_slice().expect("standard layout");
-    let (fx, fy, cx, cy) = (cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32);
-    let p = p0.map(|x| x as f32);
-    let d = dx.map(|x| x as f32);
-    let dso = dso as f32;
-    let (colsf, rowsf) = (cols as f32, rows as f32);
-    let (lim_u, lim_v) = ((cols - 1) as u32, (rows - 1) as u32);
-    debug_assert!(cone == (cam.projection == Projection::Cone));
-    let mut iu = [0i32; BATCH];
-    let mut iv = [0i32; BATCH];
-    let mut fu = [0f32; BATCH];
-    let mut fv = [0f32; BATCH];
-    let mut wt = [0f32; BATCH];
-    let mut valid = [false; BATCH];
-    let mut inside = [false; BATCH];
-    for (b, chunk) in line.chunks_mut(BATCH).enumerate() {
-        for t in 0..chunk.len() {
-            let x = (b * BATCH + t) as f32;
-            let c = [p[0] + x * d[0], p[1] + x * d[1], p[2] + x * d[2]];
-            let (u, v, w) = if cone {
-                let inv = 1.0 / c[2];
-                let uw = dso * inv;
-                (fx * c[0] * inv + cx, fy * c[1] * inv + cy, uw * uw)
-            } else {
-                (fx * c[0] + cx, fy * c[1] + cy, 1.0)
-            };
-            // In the detector's bilinear footprint and in front of the source (false for NaN).
-            let ok = (!cone || c[2] > 0.0) & (u > -1.0) & (u < colsf) & (v > -1.0) & (v < rowsf);
-            let (a, bq) = (floorish(u), floorish(v));
-            iu[t] = a;
-            iv[t] = bq;
-            fu[t] = u - a as f32;
-            fv[t] = v - bq as f32;
-            wt[t] = w;
-            valid[t] = ok;
-            inside[t] = ok & ((a as u32) < lim_u) & ((bq as u32) < lim_v);
+/// One voxel column along z as seen from one view: fixed detector column position and weight,
+/// row position `v0 + j·dv` for the `j`-th voxel of the column.
+struct Column {
+    /// Left detector column and the bilinear weight of the right one.
+    iu: i32,
+    gu: f32,
+    v0: f32,
+    dv: f32,
+    weight: f32,
+}
+
+impl Column {
+    /// `None` when the column is behind the source or misses the detector's bilinear footprint.
+    fn new(cam: &Camera, p: [f64; 3], dyc: f32, cone: bool, dso: f32) -> Option<Column> {
+        debug_assert!(cone == (cam.projection == Projection::Cone));
+        let (fx, fy, cx, cy) = (cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32);
+        let c = p.map(|x| x as f32);
+        let (u, v0, dv, weight) = if cone {
+            if c[2].is_nan() || c[2] <= 0.0 {
+                return None;
+            }
+            let inv = 1.0 / c[2];
+            let uw = dso * inv;
+            (
+                fx * c[0] * inv + cx,
+                fy * c[1] * inv + cy,
+                fy * dyc * inv,
+                uw * uw,
+            )
+        } else {
+            (fx * c[0] + cx, fy * c[1] + cy, fy * dyc, 1.0)
+        };
+        // In the bilinear footprint of the columns (false for NaN).
+        if !(u > -1.0 && u < cam.cols as f32) {
+            return None;
         }
-        for (t, out) in chunk.iter_mut().enumerate() {
-            if !valid[t] {
+        let iu = floorish(u);
+        Some(Column {
+            iu,
+            gu: u - iu as f32,
+            v0,
+            dv,
+            weight,
+        })
+    }
+
+    /// Add `scale · weight · bilinear(img, u, v_j)` to `out[j·stride]` for `j < nz`.
+    fn accumulate(
+        &self,
+        img: &[f32],
+        cam: &Camera,
+        scale: f32,
+        nz: usize,
+        out: &mut [f32],
+        stride: usize,
+    ) {
+        let (rows, cols) = (cam.rows, cam.cols);
+        let w = scale * self.weight;
+        let (gu, iu) = (self.gu, self.iu);
+        // Both columns on the detector: the common case, no per-sample column checks.
+        let both = iu >= 0 && (iu as usize) + 1 < cols;
+        let rowsf = rows as f32;
+        for j in 0..nz {
+            let v = self.v0 + j as f32 * self.dv;
+            if !(v > -1.0 && v < rowsf) {
                 continue;
             }
-            let (gu, gv) = (fu[t], fv[t]);
-            let val = if inside[t] {
-                let base = iv[t] as usize * cols + iu[t] as usize;
-                let cell = &img[base..=base + cols + 1];
-                let a0 = cell[0] + gu * (cell[1] - cell[0]);
-                let a1 = cell[cols] + gu * (cell[cols + 1] - cell[cols]);
+            let iv = floorish(v);
+            let gv = v - iv as f32;
+            let val = if both && iv >= 0 && (iv as usize) + 1 < rows {
+                let base = iv as usize * cols + iu as usize;
+                let a0 = img[base] + gu * (img[base + 1] - img[base]);
+                let a1 = img[base + cols] + gu * (img[base + cols + 1] - img[base + cols]);
                 a0 + gv * (a1 - a0)
             } else {
                 let mut acc = 0.0f32;
                 for (dv, wv) in [(0i32, 1.0 - gv), (1, gv)] {
                     for (du, wu) in [(0i32, 1.0 - gu), (1, gu)] {
-                        let (ru, rv) = (iu[t] + du, iv[t] + dv);
+                        let (ru, rv) = (iu + du, iv + dv);
                         if ru >= 0 && (ru as usize) < cols && rv >= 0 && (rv as usize) < rows {
                             acc += wu * wv * img[rv as usize * cols + ru as usize];
                         }
@@ -147,7 +176,7 @@ fn accumulate_line(
                 }
                 acc
             };
-            *out += scale * wt[t] * val;
+            out[j * stride] += w * val;
         }
     }
 }
