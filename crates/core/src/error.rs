@@ -52,6 +52,19 @@ pub fn ensure_finite(field: impl AsRef<str>, v: f64) -> Result<()> {
     }
 }
 
+/// `Ok` when an array's shape equals `want`, else an [`Error::Invalid`] naming `field`, e.g.
+/// "shape [3, 4] does not match [views, rows, cols] = [3, 5]".
+pub fn ensure_shape(field: &str, got: &[usize], want: &[usize], what: &str) -> Result<()> {
+    if got == want {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            field,
+            format!("shape {got:?} does not match {what} = {want:?}"),
+        ))
+    }
+}
+
 impl Error {
     /// An invalid-value error for `field`.
     pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {

@@ -30,16 +30,12 @@ pub fn backproject_voxel(
     if views.is_empty() {
         return Err(Error::invalid("views", "the view list is empty"));
     }
-    if projections.shape() != [views.len(), d.rows, d.cols] {
-        return Err(Error::invalid(
-            "projections",
-            format!(
-                "shape {:?} does not match [views, rows, cols] = {:?}",
-                projections.shape(),
-                [views.len(), d.rows, d.cols]
-            ),
-        ));
-    }
+    crate::error::ensure_shape(
+        "projections",
+        projections.shape(),
+        &[views.len(), d.rows, d.cols],
+        "[views, rows, cols]",
+    )?;
     if scale.len() != views.len() {
         return Err(Error::invalid("scale", "needs one factor per view"));
     }

@@ -20,15 +20,7 @@ pub fn cgls(
         return Err(Error::invalid("iterations", "must be at least 1"));
     }
     let shape = a.projection_shape(a.views());
-    if b.shape() != shape {
-        return Err(Error::invalid(
-            "projections",
-            format!(
-                "shape {:?} does not match [views, rows, cols] = {shape:?}",
-                b.shape()
-            ),
-        ));
-    }
+    crate::error::ensure_shape("projections", b.shape(), &shape, "[views, rows, cols]")?;
     let grid = a.geometry().volume.shape_zyx();
     let mut x = match x0 {
         Some(x) if x.shape() == grid => x,

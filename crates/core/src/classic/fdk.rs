@@ -47,15 +47,12 @@ pub fn fdk(
     geometry.validate()?;
     let d = &geometry.detector;
     let want = [geometry.views(), d.rows, d.cols];
-    if projections.shape() != want {
-        return Err(Error::invalid(
-            "projections",
-            format!(
-                "shape {:?} does not match [views, rows, cols] = {want:?}",
-                projections.shape()
-            ),
-        ));
-    }
+    crate::error::ensure_shape(
+        "projections",
+        projections.shape(),
+        &want,
+        "[views, rows, cols]",
+    )?;
     let kind = scan_kind(geometry);
     let mut p = projections.to_owned();
     // Pre-weights: cosine (cone) and Parker (short scan).

@@ -159,15 +159,12 @@ impl Joseph {
     ) -> Result<Array3<f32>> {
         self.check_views(views)?;
         let want = self.projection_shape(views.len());
-        if projections.shape() != want {
-            return Err(Error::invalid(
-                "projections",
-                format!(
-                    "shape {:?} does not match [views, rows, cols] = {want:?}",
-                    projections.shape()
-                ),
-            ));
-        }
+        crate::error::ensure_shape(
+            "projections",
+            projections.shape(),
+            &want,
+            "[views, rows, cols]",
+        )?;
         let g = &self.geometry.volume;
         let dims = [g.nx, g.ny, g.nz];
         let n = g.len();

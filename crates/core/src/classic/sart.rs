@@ -115,15 +115,7 @@ pub fn sart(
     opts.validate()?;
     let n = a.views();
     let shape = a.projection_shape(n);
-    if b.shape() != shape {
-        return Err(Error::invalid(
-            "projections",
-            format!(
-                "shape {:?} does not match [views, rows, cols] = {shape:?}",
-                b.shape()
-            ),
-        ));
-    }
+    crate::error::ensure_shape("projections", b.shape(), &shape, "[views, rows, cols]")?;
     let grid = a.geometry().volume.clone();
     let mut x = match x0 {
         Some(x) if x.shape() == grid.shape_zyx() => x,

@@ -10,16 +10,7 @@ pub fn psnr<D: Dimension>(
     truth: ArrayView<f32, D>,
     peak: f64,
 ) -> Result<f64> {
-    if pred.shape() != truth.shape() {
-        return Err(Error::invalid(
-            "prediction",
-            format!(
-                "shape {:?} differs from the reference {:?}",
-                pred.shape(),
-                truth.shape()
-            ),
-        ));
-    }
+    crate::error::ensure_shape("prediction", pred.shape(), truth.shape(), "the reference")?;
     if truth.is_empty() {
         return Err(Error::invalid("reference", "is empty"));
     }

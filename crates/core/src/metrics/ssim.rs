@@ -173,16 +173,7 @@ pub fn ssim_2d(a: ArrayView2<f32>, b: ArrayView2<f32>, p: &SsimParams) -> Result
 /// 3-D SSIM of `pred` against `truth` (both `[z][y][x]`), R²-Gaussian style (module docs).
 pub fn ssim_3d(pred: ArrayView3<f32>, truth: ArrayView3<f32>, p: &SsimParams) -> Result<Ssim3d> {
     check_params(p)?;
-    if pred.shape() != truth.shape() {
-        return Err(Error::invalid(
-            "prediction",
-            format!(
-                "shape {:?} differs from the reference {:?}",
-                pred.shape(),
-                truth.shape()
-            ),
-        ));
-    }
+    crate::error::ensure_shape("prediction", pred.shape(), truth.shape(), "the reference")?;
     let mut axes = [0.0; 3];
     for (k, out) in axes.iter_mut().enumerate() {
         let n = truth.shape()[k];
