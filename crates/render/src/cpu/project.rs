@@ -216,41 +216,178 @@ fn row_span(s: &PixelSplat, dy: f32, cut2: f32, x0: usize, x1: usize) -> Option<
     (lo < hi).then_some((lo as usize, hi as usize))
 }
 
-/// Visit the rows of `s` inside tile rect `r`: `f(local_start, xs, dy, e)` where `e[j]` is
-/// `G = exp(−½ dᵀ Σ₂D⁻¹ d)` at pixel `xs + j` of the row (0 beyond the cut-off) and
-/// `local_start` is the tile-local index of pixel `xs`. Only the row's chord of the cut-off
-/// ellipse is evaluated (π/4 of the bounding box for a round footprint, far less for thin
-/// oblique ones), branch-free in a fixed-size buffer so the compiler can vectorise it.
+/// Tile-buffer elements per channel: rows are stored `TILE` wide whatever the tile's width (the
+/// columns past a detector edge stay 0), so every row loop has the fixed trip count `TILE`.
+const TILE_PIXELS: usize = TILE * TILE;
+
+/// Pixel box `[x0, x1) × [y0, y1)` of `s` clipped to tile rect `r`, or `None` if empty.
 #[inline(always)]
-fn affine_rows(
-    s: &PixelSplat,
-    r: (usize, usize, usize, usize),
-    cut2: f32,
-    mut f: impl FnMut(usize, usize, f32, &[f32]),
-) {
+fn clip(s: &PixelSplat, r: (usize, usize, usize, usize)) -> Option<(usize, usize, usize, usize)> {
     let (x0, x1) = ((s.x0 as usize).max(r.0), (s.x1 as usize).min(r.1));
     let (y0, y1) = ((s.y0 as usize).max(r.2), (s.y1 as usize).min(r.3));
-    if x0 >= x1 {
-        return;
-    }
-    let tw = r.1 - r.0;
+    (x0 < x1 && y0 < y1).then_some((x0, x1, y0, y1))
+}
+
+/// One tile row of `s` at `dy = y − my` (pixels): `e[j] = G = exp(−½ dᵀ Σ₂D⁻¹ d)` at column
+/// `c0 + j` (`c0` the tile's first column), exactly 0 outside the row's chord of the cut-off
+/// ellipse within `[x0, x1)`; `None` if the row misses the ellipse. The row is evaluated across
+/// the full tile width with masks instead of a variable-length loop: no scalar remainder, so
+/// the loop runs in full SIMD registers (2 × 8 lanes with AVX2).
+#[inline(always)]
+fn affine_row(
+    s: &PixelSplat,
+    c0: usize,
+    dy: f32,
+    cut2: f32,
+    x0: usize,
+    x1: usize,
+) -> Option<[f32; TILE]> {
+    let (xs, xe) = row_span(s, dy, cut2, x0, x1)?;
+    // Lane range [ls, le) of the span, as floats for a conversion-free compare.
+    let (ls, le) = ((xs - c0) as f32, (xe - c0) as f32);
+    let dx0 = c0 as f32 - s.mx;
+    let gdy = s.gamma * dy * dy;
+    let bdy = s.beta * dy;
     let mut e = [0.0f32; TILE];
-    for y in y0..y1 {
-        let dy = y as f32 - s.my;
-        let Some((xs, xe)) = row_span(s, dy, cut2, x0, x1) else {
-            continue;
+    for (ej, &j) in e.iter_mut().zip(&IOTA) {
+        let d = dx0 + j + bdy;
+        let q = s.a * d * d + gdy;
+        let v = super::exp_neg(-0.5 * q);
+        *ej = if q <= cut2 && j >= ls && j < le {
+            v
+        } else {
+            0.0
         };
-        let n = xe - xs;
-        let dx0 = xs as f32 - s.mx;
-        let gdy = s.gamma * dy * dy;
-        let bdy = s.beta * dy;
-        for (ej, &j) in e[..n].iter_mut().zip(&IOTA) {
-            let d = dx0 + j + bdy;
-            let q = s.a * d * d + gdy;
-            let v = super::exp_neg(-0.5 * q);
-            *ej = if q <= cut2 { v } else { 0.0 };
+    }
+    Some(e)
+}
+
+/// Whether the running CPU has AVX2 and FMA (checked once; the row loops then run 8 lanes wide).
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        *HAS.get_or_init(|| is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Generates a dispatcher `$name` over one body compiled twice: for the build's baseline target
+/// and with AVX2+FMA enabled (chosen at run time by [`has_avx2`]). The body is the same source;
+/// no `mul_add` is written, so both variants round identically.
+macro_rules! dispatched {
+    ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
+        $(#[$doc])*
+        #[allow(clippy::too_many_arguments)]
+        fn $name($($arg: $ty),*) {
+            #[inline(always)]
+            #[allow(clippy::too_many_arguments)]
+            fn body($($arg: $ty),*) $body
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,fma")]
+            #[allow(clippy::too_many_arguments)]
+            fn wide($($arg: $ty),*) {
+                body($($arg),*)
+            }
+            #[cfg(target_arch = "x86_64")]
+            if has_avx2() {
+                // SAFETY: `has_avx2` verified that the CPU supports AVX2 and FMA.
+                return unsafe { wide($($arg),*) };
+            }
+            body($($arg),*)
         }
-        f((y - r.2) * tw + xs - r.0, xs, dy, &e[..n]);
+    };
+}
+
+dispatched! {
+    /// Forward splat of `s` into the tile buffer `buf` (`[M][tile pixels]`) of tile rect `r`
+    /// with per-channel weights `w[c] = ρ_c μ`.
+    fn splat_forward(s: &PixelSplat, r: (usize, usize, usize, usize), cut2: f32, w: &[f32], buf: &mut [f32]) {
+        let Some((x0, x1, y0, y1)) = clip(s, r) else {
+            return;
+        };
+        for y in y0..y1 {
+            let Some(e) = affine_row(s, r.0, y as f32 - s.my, cut2, x0, x1) else {
+                continue;
+            };
+            let p = (y - r.2) * TILE;
+            for (c, &w) in w.iter().enumerate() {
+                let o = c * TILE_PIXELS + p;
+                let row: &mut [f32; TILE] =
+                    (&mut buf[o..o + TILE]).try_into().expect("TILE-wide row");
+                for (b, &e) in row.iter_mut().zip(&e) {
+                    // Select, not multiply: lanes outside the ellipse stay 0 even for w = ∞.
+                    *b += if e != 0.0 { w * e } else { 0.0 };
+                }
+            }
+        }
+    }
+}
+
+dispatched! {
+    /// Backward partial sums of splat `s` over tile rect `r` into `acc`
+    /// (`[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
+    /// [`project_backward`]) from the tile's upstream gradient `gt` (`[M][tile pixels]`).
+    /// `lanes` and `mom` are scratch (any contents on entry).
+    fn splat_backward(
+        s: &PixelSplat,
+        r: (usize, usize, usize, usize),
+        cut2: f32,
+        gt: &[f32],
+        dens: &[f32],
+        lanes: &mut [[f32; TILE]],
+        mom: &mut [[f32; TILE]; 5],
+        acc: &mut [f64],
+    ) {
+        let m = dens.len();
+        let dx0 = r.0 as f32 - s.mx;
+        // Per-lane (pixel column) partial sums, reduced once per pair, so the row loops are
+        // element-wise and vectorise: [S_0..S_{M-1}, x, y, xx, xy, yy].
+        lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
+        *mom = [[0.0; TILE]; 5];
+        let Some((x0, x1, y0, y1)) = clip(s, r) else {
+            return;
+        };
+        for y in y0..y1 {
+            let dy = y as f32 - s.my;
+            let Some(e) = affine_row(s, r.0, dy, cut2, x0, x1) else {
+                continue;
+            };
+            let p = (y - r.2) * TILE;
+            let mut wge = [0.0f32; TILE];
+            for c in 0..m {
+                let o = c * TILE_PIXELS + p;
+                let gc: &[f32; TILE] = (&gt[o..o + TILE]).try_into().expect("TILE-wide row");
+                let rho = dens[c];
+                let lane = &mut lanes[c];
+                for j in 0..TILE {
+                    // Select: a non-finite upstream gradient outside the ellipse contributes 0.
+                    let ge = if e[j] != 0.0 { gc[j] * e[j] } else { 0.0 };
+                    lane[j] += ge;
+                    wge[j] += rho * ge;
+                }
+            }
+            let [lx, ly, lxx, lxy, lyy] = &mut *mom;
+            for j in 0..TILE {
+                let w = wge[j];
+                let dx = dx0 + IOTA[j];
+                let wx = w * dx;
+                lx[j] += wx;
+                ly[j] += w * dy;
+                lxx[j] += wx * dx;
+                lxy[j] += wx * dy;
+                lyy[j] += w * dy * dy;
+            }
+        }
+        for c in 0..m {
+            acc[c] = lanes[c].iter().map(|&v| v as f64).sum();
+        }
+        for q in 0..5 {
+            acc[m + q] = mom[q].iter().map(|&v| v as f64).sum();
+        }
     }
 }
 
@@ -263,10 +400,9 @@ fn exact_pixels(
 ) {
     let (x0, x1) = (px[0].max(r.0), px[1].min(r.1));
     let (y0, y1) = (px[2].max(r.2), px[3].min(r.3));
-    let tw = r.1 - r.0;
     for y in y0..y1 {
         for x in x0..x1 {
-            f((y - r.2) * tw + x - r.0, x, y);
+            f((y - r.2) * TILE + x - r.0, x, y);
         }
     }
 }
@@ -300,7 +436,7 @@ pub fn project_forward(
             .into_par_iter()
             .map(|t| {
                 let r = det.tile_rect(t);
-                let n = (r.1 - r.0) * (r.3 - r.2);
+                let n = TILE_PIXELS;
                 let mut buf = vec![0.0f32; m * n];
                 let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
                 match &prep {
@@ -317,16 +453,7 @@ pub fn project_forward(
                             for c in 0..m {
                                 w[c] = (dens[c] as f64 * mus[gi]) as f32;
                             }
-                            affine_rows(s, r, cut2 as f32, |p, _, _, e| {
-                                for c in 0..m {
-                                    let w = w[c];
-                                    for (b, e) in
-                                        buf[c * n + p..c * n + p + e.len()].iter_mut().zip(e)
-                                    {
-                                        *b += w * e;
-                                    }
-                                }
-                            });
+                            splat_forward(s, r, cut2 as f32, &w, &mut buf);
                         }
                     }
                     Prepared::Exact(splats) => {
@@ -361,10 +488,11 @@ pub fn project_forward(
         for (t, buf) in tiles.iter().enumerate() {
             let r = det.tile_rect(t);
             let tw = r.1 - r.0;
-            let n = tw * (r.3 - r.2);
+            let n = TILE_PIXELS;
             for c in 0..m {
                 for y in r.2..r.3 {
-                    let src = &buf[c * n + (y - r.2) * tw..c * n + (y - r.2 + 1) * tw];
+                    let o = c * n + (y - r.2) * TILE;
+                    let src = &buf[o..o + tw];
                     let dst = c * plane + y * det.cols + r.0;
                     view_out[dst..dst + tw].copy_from_slice(src);
                 }
@@ -418,13 +546,13 @@ pub fn project_backward(
             let tw = r.1 - r.0;
             let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
             // The tile's upstream gradient, gathered once: [M][pixels].
-            let n = tw * (r.3 - r.2);
+            let n = TILE_PIXELS;
             let mut gt = vec![0.0f32; m * n];
             for c in 0..m {
                 for y in r.2..r.3 {
                     let src = c * plane + y * det.cols + r.0;
-                    gt[c * n + (y - r.2) * tw..c * n + (y - r.2 + 1) * tw]
-                        .copy_from_slice(&gview[src..src + tw]);
+                    let o = c * n + (y - r.2) * TILE;
+                    gt[o..o + tw].copy_from_slice(&gview[src..src + tw]);
                 }
             }
             let mut lanes = vec![[0.0f32; TILE]; m];
@@ -441,42 +569,7 @@ pub fn project_backward(
                 match &prep {
                     Prepared::Affine(..) => {
                         let Some(s) = &local[j] else { continue };
-                        // Per-lane (pixel column) partial sums, reduced once per pair, so the row
-                        // loops are element-wise and vectorise: [S_0..S_{M-1}, x, y, xx, xy, yy].
-                        lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
-                        affine_rows(s, r, cut2 as f32, |p, x0, dy, e| {
-                            let k = e.len().min(TILE);
-                            let mut wge = [0.0f32; TILE];
-                            for c in 0..m {
-                                let gc = &gt[c * n + p..c * n + p + k];
-                                let rho = dens[c];
-                                let lane = &mut lanes[c];
-                                for j in 0..k {
-                                    let ge = gc[j] * e[j];
-                                    lane[j] += ge;
-                                    wge[j] += rho * ge;
-                                }
-                            }
-                            let dx0 = x0 as f32 - s.mx;
-                            let [lx, ly, lxx, lxy, lyy] = &mut mom;
-                            for j in 0..k {
-                                let w = wge[j];
-                                let dx = dx0 + IOTA[j];
-                                let wx = w * dx;
-                                lx[j] += wx;
-                                ly[j] += w * dy;
-                                lxx[j] += wx * dx;
-                                lxy[j] += wx * dy;
-                                lyy[j] += w * dy * dy;
-                            }
-                        });
-                        for c in 0..m {
-                            acc[c] = lanes[c].iter().map(|&v| v as f64).sum();
-                        }
-                        for q in 0..5 {
-                            acc[m + q] = mom[q].iter().map(|&v| v as f64).sum();
-                            mom[q] = [0.0; TILE];
-                        }
+                        splat_backward(s, r, cut2 as f32, &gt, dens, &mut lanes, &mut mom, acc);
                     }
                     Prepared::Exact(splats) => {
                         let Some((s, px)) = &splats[gi] else { continue };
