@@ -106,7 +106,8 @@ impl Detector {
 
 /// Per-view preparation of every Gaussian.
 enum Prepared {
-    Affine(Vec<Option<PixelSplat>>, Vec<f64>),
+    /// Pixel splats, and per Gaussian its μ and `Σ₂D⁻¹` as `[a, b, c]` (f64, for the backward).
+    Affine(Vec<Option<PixelSplat>>, Vec<(f64, [f64; 3])>),
     Exact(Vec<Option<(ExactSplat, [usize; 4])>>),
 }
 
@@ -129,15 +130,16 @@ fn prepare(
     match opts.mode {
         ProjectionMode::Affine => {
             let near = opts.near_fraction * cam.sdd;
-            let items: Vec<(Option<PixelSplat>, f64, Option<TileBox>)> = (0..k)
+            type Item = (Option<PixelSplat>, (f64, [f64; 3]), Option<TileBox>);
+            let items: Vec<Item> = (0..k)
                 .into_par_iter()
                 .map(|i| {
                     if g.densities_of(i).is_none() {
-                        return (None, 0.0, None);
+                        return (None, (0.0, [0.0; 3]), None);
                     }
                     let off = screen_offset(screen, k, view, i);
                     let Some(s) = gm::splat(&g.geom(i), cam, off, opts.cutoff, near) else {
-                        return (None, 0.0, None);
+                        return (None, (0.0, [0.0; 3]), None);
                     };
                     let bb = [
                         s.mean[0] - s.half_extent[0],
@@ -146,7 +148,7 @@ fn prepare(
                         s.mean[1] + s.half_extent[1],
                     ];
                     let Some((px, tb)) = det.boxes(bb) else {
-                        return (None, 0.0, None);
+                        return (None, (0.0, [0.0; 3]), None);
                     };
                     let ps = PixelSplat {
                         mx: s.mean[0] as f32,
@@ -161,9 +163,9 @@ fn prepare(
                     };
                     let ok = ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite();
                     if ok {
-                        (Some(ps), s.mu, Some(tb))
+                        (Some(ps), (s.mu, s.conic_mat), Some(tb))
                     } else {
-                        (None, 0.0, None)
+                        (None, (0.0, [0.0; 3]), None)
                     }
                 })
                 .collect();
@@ -262,8 +264,18 @@ fn affine_row(
     Some(e)
 }
 
+/// Test hook: while set, the dispatchers take the baseline path even on AVX2 CPUs (both paths
+/// give bit-identical results, so other tests running meanwhile are unaffected).
+#[cfg(test)]
+pub(crate) static FORCE_BASELINE: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
+
 /// Whether the running CPU has AVX2 and FMA (checked once; the row loops then run 8 lanes wide).
 fn has_avx2() -> bool {
+    #[cfg(test)]
+    if FORCE_BASELINE.load(std::sync::atomic::Ordering::Relaxed) {
+        return false;
+    }
     #[cfg(target_arch = "x86_64")]
     {
         static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
@@ -451,7 +463,7 @@ pub fn project_forward(
                         for &(gi, ref s) in &local {
                             let dens = &g.densities[m * gi..m * gi + m];
                             for c in 0..m {
-                                w[c] = (dens[c] as f64 * mus[gi]) as f32;
+                                w[c] = (dens[c] as f64 * mus[gi].0) as f32;
                             }
                             splat_forward(s, r, cut2 as f32, &w, &mut buf);
                         }
@@ -626,10 +638,8 @@ pub fn project_backward(
                 let off = screen_offset(screen, k, v, i);
                 let (geo, g_dens, g_screen) = match &prep {
                     Prepared::Affine(_, mus) => {
-                        let mu = mus[i];
+                        let (mu, [ca, cb, cc]) = mus[i];
                         let g_mu: f64 = (0..m).map(|c| dens[c] as f64 * sum[c]).sum();
-                        let s = gm::splat(&geom, cam, off, opts.cutoff, near)?;
-                        let [ca, cb, cc] = s.conic_mat;
                         let (wx, wy) = (sum[m], sum[m + 1]);
                         let sg = SplatGrad {
                             mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
