@@ -231,10 +231,11 @@ fn clip(s: &PixelSplat, r: (usize, usize, usize, usize)) -> Option<(usize, usize
 }
 
 /// One tile row of `s` at `dy = y − my` (pixels): `e[j] = G = exp(−½ dᵀ Σ₂D⁻¹ d)` at column
-/// `c0 + j` (`c0` the tile's first column), exactly 0 outside the row's chord of the cut-off
-/// ellipse within `[x0, x1)`; `None` if the row misses the ellipse. The row is evaluated across
-/// the full tile width with masks instead of a variable-length loop: no scalar remainder, so
-/// the loop runs in full SIMD registers (2 × 8 lanes with AVX2).
+/// `c0 + j` (`c0` the tile's first column), exactly 0 beyond the cut-off (`dᵀ Σ₂D⁻¹ d > cut²`)
+/// and outside the splat's clipped columns `[x0, x1)`; `None` if the row misses the cut-off
+/// ellipse. The row is evaluated across the full tile width with masks instead of a
+/// variable-length loop over its chord: no scalar remainder, no per-row square root or
+/// division, so the loop runs in full SIMD registers (2 × 8 lanes with AVX2).
 #[inline(always)]
 fn affine_row(
     s: &PixelSplat,
@@ -244,11 +245,13 @@ fn affine_row(
     x0: usize,
     x1: usize,
 ) -> Option<[f32; TILE]> {
-    let (xs, xe) = row_span(s, dy, cut2, x0, x1)?;
-    // Lane range [ls, le) of the span, as floats for a conversion-free compare.
-    let (ls, le) = ((xs - c0) as f32, (xe - c0) as f32);
-    let dx0 = c0 as f32 - s.mx;
     let gdy = s.gamma * dy * dy;
+    if (cut2 - gdy).partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    // Lane range [ls, le) of the clipped columns, as floats for a conversion-free compare.
+    let (ls, le) = ((x0 - c0) as f32, (x1 - c0) as f32);
+    let dx0 = c0 as f32 - s.mx;
     let bdy = s.beta * dy;
     let mut e = [0.0f32; TILE];
     for (ej, &j) in e.iter_mut().zip(&IOTA) {
@@ -395,12 +398,30 @@ dispatched! {
             }
         }
         for c in 0..m {
-            acc[c] = lanes[c].iter().map(|&v| v as f64).sum();
+            acc[c] = sum_lanes(&lanes[c]);
         }
         for q in 0..5 {
-            acc[m + q] = mom[q].iter().map(|&v| v as f64).sum();
+            acc[m + q] = sum_lanes(&mom[q]);
         }
     }
+}
+
+/// Sum of the `TILE` lanes in f64, pairwise (halving element-wise): independent adds that
+/// vectorise, instead of a serial chain of `TILE` dependent adds per partial sum.
+#[inline(always)]
+fn sum_lanes(v: &[f32; TILE]) -> f64 {
+    let mut a = [0.0f64; TILE];
+    for (a, &v) in a.iter_mut().zip(v) {
+        *a = v as f64;
+    }
+    let mut w = TILE / 2;
+    while w > 0 {
+        for j in 0..w {
+            a[j] += a[j + w];
+        }
+        w /= 2;
+    }
+    a[0]
 }
 
 /// Visit the pixels of an exact splat inside tile rect `r`: `f(local_index, col, row)`.
