@@ -361,15 +361,17 @@ dispatched! {
         gt: &[f32],
         dens: &[f32],
         lanes: &mut [[f32; TILE]],
-        mom: &mut [[f32; TILE]; 5],
+        mom: &mut [[f32; TILE]; 3],
         acc: &mut [f64],
     ) {
         let m = dens.len();
         let dx0 = r.0 as f32 - s.mx;
         // Per-lane (pixel column) partial sums, reduced once per pair, so the row loops are
-        // element-wise and vectorise: [S_0..S_{M-1}, x, y, xx, xy, yy].
+        // element-wise and vectorise: `lanes` = S_c per column, `mom` = Σ_rows wG, Σ_rows wG dy,
+        // Σ_rows wG dy² per column. A column's dx is fixed, so the dx moments follow at the
+        // reduction: Σ wG dx = Σ_col dx·(Σ_rows wG), and so on.
         lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
-        *mom = [[0.0; TILE]; 5];
+        *mom = [[0.0; TILE]; 3];
         let Some((x0, x1, y0, y1)) = clip(s, r) else {
             return;
         };
@@ -392,35 +394,40 @@ dispatched! {
                     wge[j] += rho * ge;
                 }
             }
-            let [lx, ly, lxx, lxy, lyy] = &mut *mom;
+            let [lw, ly, lyy] = &mut *mom;
             for j in 0..TILE {
                 let w = wge[j];
-                let dx = dx0 + IOTA[j];
-                let wx = w * dx;
-                lx[j] += wx;
-                ly[j] += w * dy;
-                lxx[j] += wx * dx;
-                lxy[j] += wx * dy;
-                lyy[j] += w * dy * dy;
+                let wy = w * dy;
+                lw[j] += w;
+                ly[j] += wy;
+                lyy[j] += wy * dy;
             }
         }
         for c in 0..m {
-            acc[c] = sum_lanes(&lanes[c]);
+            acc[c] = sum_lanes(&widen(&lanes[c]));
         }
-        for q in 0..5 {
-            acc[m + q] = sum_lanes(&mom[q]);
-        }
+        let [lw, ly, lyy] = mom.map(|l| widen(&l));
+        let dx: [f64; TILE] = std::array::from_fn(|j| (dx0 + IOTA[j]) as f64);
+        let x: [f64; TILE] = std::array::from_fn(|j| dx[j] * lw[j]);
+        acc[m] = sum_lanes(&x);
+        acc[m + 1] = sum_lanes(&ly);
+        acc[m + 2] = sum_lanes(&std::array::from_fn(|j| dx[j] * x[j]));
+        acc[m + 3] = sum_lanes(&std::array::from_fn(|j| dx[j] * ly[j]));
+        acc[m + 4] = sum_lanes(&lyy);
     }
 }
 
-/// Sum of the `TILE` lanes in f64, pairwise (halving element-wise): independent adds that
-/// vectorise, instead of a serial chain of `TILE` dependent adds per partial sum.
+/// Lanes as f64.
 #[inline(always)]
-fn sum_lanes(v: &[f32; TILE]) -> f64 {
-    let mut a = [0.0f64; TILE];
-    for (a, &v) in a.iter_mut().zip(v) {
-        *a = v as f64;
-    }
+fn widen(v: &[f32; TILE]) -> [f64; TILE] {
+    std::array::from_fn(|j| v[j] as f64)
+}
+
+/// Sum of the `TILE` lanes, pairwise (halving element-wise): independent adds that vectorise,
+/// instead of a serial chain of `TILE` dependent adds per partial sum.
+#[inline(always)]
+fn sum_lanes(v: &[f64; TILE]) -> f64 {
+    let mut a = *v;
     let mut w = TILE / 2;
     while w > 0 {
         for j in 0..w {
@@ -596,7 +603,7 @@ pub fn project_backward(
                 }
             }
             let mut lanes = vec![[0.0f32; TILE]; m];
-            let mut mom = [[0.0f32; TILE]; 5];
+            let mut mom = [[0.0f32; TILE]; 3];
             // Gather the tile's affine splats first (see the forward pass).
             let local: Vec<Option<PixelSplat>> = match &prep {
                 Prepared::Affine(splats, _) => list.iter().map(|&gi| splats[gi as usize]).collect(),
