@@ -10,8 +10,8 @@
 
 use rayon::prelude::*;
 
-use super::GaussianSlices;
 use super::tiles::{Bins, TileBox, tile_span};
+use super::{Fused, GaussianSlices, MulAdd, Separate, exp_neg_with};
 use crate::camera::Camera;
 use crate::gaussian_math::{
     self as gm, ExactSplat, GaussianGeom, SplatGrad, camera_ray, exact_splat, exact_splat_backward,
@@ -237,7 +237,7 @@ fn clip(s: &PixelSplat, r: (usize, usize, usize, usize)) -> Option<(usize, usize
 /// variable-length loop over its chord: no scalar remainder, no per-row square root or
 /// division, so the loop runs in full SIMD registers (2 × 8 lanes with AVX2).
 #[inline(always)]
-fn affine_row(
+fn affine_row<F: MulAdd>(
     s: &PixelSplat,
     c0: usize,
     dy: f32,
@@ -259,8 +259,8 @@ fn affine_row(
         let lanes = h * HALF..(h + 1) * HALF;
         for (ej, &j) in e[lanes.clone()].iter_mut().zip(&IOTA[lanes]) {
             let d = dx0 + j + bdy;
-            let q = s.a * d * d + gdy;
-            let v = super::exp_neg(-0.5 * q);
+            let q = F::mul_add(s.a * d, d, gdy);
+            let v = exp_neg_with::<F>(-0.5 * q);
             *ej = if q <= cut2 && j >= ls && j < le {
                 v
             } else {
@@ -298,8 +298,8 @@ fn has_avx2() -> bool {
 }
 
 /// Generates a dispatcher `$name` over one body compiled twice: for the build's baseline target
-/// and with AVX2+FMA enabled (chosen at run time by [`has_avx2`]). The body is the same source;
-/// no `mul_add` is written, so both variants round identically.
+/// with unfused multiply-adds (`F` = [`Separate`]) and with AVX2+FMA enabled and fused ones
+/// (`F` = [`Fused`]), chosen at run time by [`has_avx2`]. The variants differ in rounding only.
 macro_rules! dispatched {
     ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
         $(#[$doc])*
@@ -307,19 +307,19 @@ macro_rules! dispatched {
         fn $name($($arg: $ty),*) {
             #[inline(always)]
             #[allow(clippy::too_many_arguments)]
-            fn body($($arg: $ty),*) $body
+            fn body<F: MulAdd>($($arg: $ty),*) $body
             #[cfg(target_arch = "x86_64")]
             #[target_feature(enable = "avx2,fma")]
             #[allow(clippy::too_many_arguments)]
             fn wide($($arg: $ty),*) {
-                body($($arg),*)
+                body::<Fused>($($arg),*)
             }
             #[cfg(target_arch = "x86_64")]
             if has_avx2() {
                 // SAFETY: `has_avx2` verified that the CPU supports AVX2 and FMA.
                 return unsafe { wide($($arg),*) };
             }
-            body($($arg),*)
+            body::<Separate>($($arg),*)
         }
     };
 }
@@ -332,7 +332,7 @@ dispatched! {
             return;
         };
         for y in y0..y1 {
-            let Some(e) = affine_row(s, r.0, y as f32 - s.my, cut2, x0, x1) else {
+            let Some(e) = affine_row::<F>(s, r.0, y as f32 - s.my, cut2, x0, x1) else {
                 continue;
             };
             let p = (y - r.2) * TILE;
@@ -377,7 +377,7 @@ dispatched! {
         };
         for y in y0..y1 {
             let dy = y as f32 - s.my;
-            let Some(e) = affine_row(s, r.0, dy, cut2, x0, x1) else {
+            let Some(e) = affine_row::<F>(s, r.0, dy, cut2, x0, x1) else {
                 continue;
             };
             let p = (y - r.2) * TILE;
