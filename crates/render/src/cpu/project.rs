@@ -255,8 +255,8 @@ fn affine_row<F: MulAdd>(
     let bdy = s.beta * dy;
     let mut e = [0.0f32; TILE];
     // Evaluate only the 8-lane halves that hold clipped columns (one AVX2 register each).
-    for h in (x0 - c0) / HALF..(x1 - c0).div_ceil(HALF) {
-        let lanes = h * HALF..(h + 1) * HALF;
+    for h in half_range(x0 - c0, x1 - c0) {
+        let lanes = h..h + HALF;
         for (ej, &j) in e[lanes.clone()].iter_mut().zip(&IOTA[lanes]) {
             let d = dx0 + j + bdy;
             let q = F::mul_add(s.a * d, d, gdy);
@@ -271,8 +271,14 @@ fn affine_row<F: MulAdd>(
     Some(e)
 }
 
-/// Lanes per evaluation block of [`affine_row`]: one AVX2 register of f32.
+/// Lanes per evaluation block of the row kernels: one AVX2 register of f32.
 const HALF: usize = TILE / 2;
+
+/// First lanes of the `HALF`-lane blocks that hold tile columns `[l0, l1)` (`l1 ≤ TILE`).
+#[inline(always)]
+fn half_range(l0: usize, l1: usize) -> std::iter::StepBy<std::ops::Range<usize>> {
+    (l0 / HALF * HALF..l1).step_by(HALF)
+}
 
 /// Test hook: while set, the dispatchers take the baseline path even on AVX2 CPUs (both paths
 /// give bit-identical results, so other tests running meanwhile are unaffected).
@@ -327,22 +333,31 @@ macro_rules! dispatched {
 dispatched! {
     /// Forward splat of `s` into the tile buffer `buf` (`[M][tile pixels]`) of tile rect `r`
     /// with per-channel weights `w[c] = ρ_c μ`.
-    fn splat_forward(s: &PixelSplat, r: (usize, usize, usize, usize), cut2: f32, w: &[f32], buf: &mut [f32]) {
+    fn splat_forward(
+        s: &PixelSplat,
+        r: (usize, usize, usize, usize),
+        cut2: f32,
+        w: &[f32],
+        buf: &mut [f32],
+    ) {
         let Some((x0, x1, y0, y1)) = clip(s, r) else {
             return;
         };
+        let halves = half_range(x0 - r.0, x1 - r.0);
         for y in y0..y1 {
             let Some(e) = affine_row::<F>(s, r.0, y as f32 - s.my, cut2, x0, x1) else {
                 continue;
             };
             let p = (y - r.2) * TILE;
             for (c, &w) in w.iter().enumerate() {
-                let o = c * TILE_PIXELS + p;
-                let row: &mut [f32; TILE] =
-                    (&mut buf[o..o + TILE]).try_into().expect("TILE-wide row");
-                for (b, &e) in row.iter_mut().zip(&e) {
-                    // Select, not multiply: lanes outside the ellipse stay 0 even for w = ∞.
-                    *b += if e != 0.0 { w * e } else { 0.0 };
+                for h in halves.clone() {
+                    let o = c * TILE_PIXELS + p + h;
+                    let row: &mut [f32; HALF] =
+                        (&mut buf[o..o + HALF]).try_into().expect("HALF-wide block");
+                    for (b, &e) in row.iter_mut().zip(&e[h..h + HALF]) {
+                        // Select, not multiply: lanes outside the ellipse stay 0 even for w = ∞.
+                        *b += if e != 0.0 { w * e } else { 0.0 };
+                    }
                 }
             }
         }
@@ -375,32 +390,36 @@ dispatched! {
         let Some((x0, x1, y0, y1)) = clip(s, r) else {
             return;
         };
+        let halves = half_range(x0 - r.0, x1 - r.0);
         for y in y0..y1 {
             let dy = y as f32 - s.my;
             let Some(e) = affine_row::<F>(s, r.0, dy, cut2, x0, x1) else {
                 continue;
             };
             let p = (y - r.2) * TILE;
-            let mut wge = [0.0f32; TILE];
-            for c in 0..m {
-                let o = c * TILE_PIXELS + p;
-                let gc: &[f32; TILE] = (&gt[o..o + TILE]).try_into().expect("TILE-wide row");
-                let rho = dens[c];
-                let lane = &mut lanes[c];
-                for j in 0..TILE {
-                    // Select: a non-finite upstream gradient outside the ellipse contributes 0.
-                    let ge = if e[j] != 0.0 { gc[j] * e[j] } else { 0.0 };
-                    lane[j] += ge;
-                    wge[j] += rho * ge;
+            for h in halves.clone() {
+                let mut wge = [0.0f32; HALF];
+                for c in 0..m {
+                    let o = c * TILE_PIXELS + p + h;
+                    let gc: &[f32; HALF] =
+                        (&gt[o..o + HALF]).try_into().expect("HALF-wide block");
+                    let rho = dens[c];
+                    let lane = &mut lanes[c][h..h + HALF];
+                    for j in 0..HALF {
+                        // Select: a non-finite upstream gradient outside the ellipse gives 0.
+                        let ge = if e[h + j] != 0.0 { gc[j] * e[h + j] } else { 0.0 };
+                        lane[j] += ge;
+                        wge[j] += rho * ge;
+                    }
                 }
-            }
-            let [lw, ly, lyy] = &mut *mom;
-            for j in 0..TILE {
-                let w = wge[j];
-                let wy = w * dy;
-                lw[j] += w;
-                ly[j] += wy;
-                lyy[j] += wy * dy;
+                let [lw, ly, lyy] = &mut *mom;
+                for j in 0..HALF {
+                    let w = wge[j];
+                    let wy = w * dy;
+                    lw[h + j] += w;
+                    ly[h + j] += wy;
+                    lyy[h + j] += wy * dy;
+                }
             }
         }
         for c in 0..m {
