@@ -422,32 +422,36 @@ dispatched! {
                 }
             }
         }
-        for c in 0..m {
-            acc[c] = sum_lanes(&widen(&lanes[c]));
+        // Reduce only the blocks that were accumulated (the others hold zeros).
+        acc[..m + 5].fill(0.0);
+        for h in halves {
+            for c in 0..m {
+                acc[c] += sum_lanes(widen(&lanes[c][h..h + HALF]));
+            }
+            let [lw, ly, lyy] = [0, 1, 2].map(|q| widen(&mom[q][h..h + HALF]));
+            let dx: [f64; HALF] = std::array::from_fn(|j| (dx0 + IOTA[h + j]) as f64);
+            let x: [f64; HALF] = std::array::from_fn(|j| dx[j] * lw[j]);
+            acc[m] += sum_lanes(x);
+            acc[m + 1] += sum_lanes(ly);
+            acc[m + 2] += sum_lanes(std::array::from_fn(|j| dx[j] * x[j]));
+            acc[m + 3] += sum_lanes(std::array::from_fn(|j| dx[j] * ly[j]));
+            acc[m + 4] += sum_lanes(lyy);
         }
-        let [lw, ly, lyy] = mom.map(|l| widen(&l));
-        let dx: [f64; TILE] = std::array::from_fn(|j| (dx0 + IOTA[j]) as f64);
-        let x: [f64; TILE] = std::array::from_fn(|j| dx[j] * lw[j]);
-        acc[m] = sum_lanes(&x);
-        acc[m + 1] = sum_lanes(&ly);
-        acc[m + 2] = sum_lanes(&std::array::from_fn(|j| dx[j] * x[j]));
-        acc[m + 3] = sum_lanes(&std::array::from_fn(|j| dx[j] * ly[j]));
-        acc[m + 4] = sum_lanes(&lyy);
     }
 }
 
-/// Lanes as f64.
+/// The first `HALF` lanes of `v` as f64.
 #[inline(always)]
-fn widen(v: &[f32; TILE]) -> [f64; TILE] {
+fn widen(v: &[f32]) -> [f64; HALF] {
     std::array::from_fn(|j| v[j] as f64)
 }
 
-/// Sum of the `TILE` lanes, pairwise (halving element-wise): independent adds that vectorise,
-/// instead of a serial chain of `TILE` dependent adds per partial sum.
+/// Sum of `HALF` lanes, pairwise (halving element-wise): independent adds that vectorise,
+/// instead of a serial chain of dependent adds per partial sum.
 #[inline(always)]
-fn sum_lanes(v: &[f64; TILE]) -> f64 {
-    let mut a = *v;
-    let mut w = TILE / 2;
+fn sum_lanes(v: [f64; HALF]) -> f64 {
+    let mut a = v;
+    let mut w = HALF / 2;
     while w > 0 {
         for j in 0..w {
             a[j] += a[j + w];
