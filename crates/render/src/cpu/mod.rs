@@ -15,6 +15,34 @@ pub use voxelize::{VoxelizeGrads, voxelize_backward, voxelize_forward};
 
 use crate::gaussian_math::GaussianGeom;
 
+/// `a·b + c` for the SIMD kernels: [`Separate`] rounds twice (plain `*`, `+`; any target),
+/// [`Fused`] once (`mul_add`; only for code compiled with FMA, else it is a slow libm call).
+pub trait MulAdd: Copy {
+    fn mul_add(a: f32, b: f32, c: f32) -> f32;
+}
+
+/// Unfused multiply-add (two roundings), for the baseline build.
+#[derive(Clone, Copy, Debug)]
+pub struct Separate;
+
+/// Fused multiply-add (one rounding), for code compiled with `target_feature = "fma"`.
+#[derive(Clone, Copy, Debug)]
+pub struct Fused;
+
+impl MulAdd for Separate {
+    #[inline(always)]
+    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+        a * b + c
+    }
+}
+
+impl MulAdd for Fused {
+    #[inline(always)]
+    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+        a.mul_add(b, c)
+    }
+}
+
 /// `exp(x)` for `x ≤ 0` in f32, branch-free and conversion-free so pixel rows vectorise:
 /// `2ⁿ · e^y` with `n = round(x / ln 2)`, `|y| ≤ ln2 / 2` and a degree-6 Taylor polynomial
 /// (truncation `|y|⁷/7! < 1.2e-7`). `n` is read from the bits of the rounding sum itself, so no
@@ -22,6 +50,12 @@ use crate::gaussian_math::GaussianGeom;
 /// ≈ 1.6e-38, where the value no longer matters); NaN propagates.
 #[inline(always)]
 pub fn exp_neg(x: f32) -> f32 {
+    exp_neg_with::<Separate>(x)
+}
+
+/// [`exp_neg`] with the multiply-adds of `F` (the fused variant differs in the last bits only).
+#[inline(always)]
+pub fn exp_neg_with<F: MulAdd>(x: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_145_75;
     const LN2_LO: f32 = 1.428_606_8e-6;
@@ -29,14 +63,14 @@ pub fn exp_neg(x: f32) -> f32 {
     // the low mantissa bits: t.to_bits() − MAGIC.to_bits() = n.
     const MAGIC: f32 = 12_582_912.0;
     let x = x.clamp(-87.0, 0.0);
-    let t = x * LOG2E + MAGIC;
+    let t = F::mul_add(x, LOG2E, MAGIC);
     let n = t - MAGIC;
     let ni = (t.to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
-    let y = (x - n * LN2_HI) - n * LN2_LO;
-    let p = 1.0
-        + y * (1.0
-            + y * (0.5
-                + y * (1.0 / 6.0 + y * (1.0 / 24.0 + y * (1.0 / 120.0 + y * (1.0 / 720.0))))));
+    let y = F::mul_add(-n, LN2_LO, F::mul_add(-n, LN2_HI, x));
+    let mut p = 1.0 / 720.0;
+    for c in [1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0, 1.0] {
+        p = F::mul_add(p, y, c);
+    }
     let scale = f32::from_bits(((ni + 127) as u32) << 23);
     p * scale
 }

@@ -10,8 +10,8 @@
 
 use rayon::prelude::*;
 
-use super::GaussianSlices;
 use super::tiles::{Bins, TileBox, tile_span};
+use super::{Fused, GaussianSlices, MulAdd, Separate, exp_neg_with};
 use crate::camera::Camera;
 use crate::gaussian_math::{
     self as gm, ExactSplat, GaussianGeom, SplatGrad, camera_ray, exact_splat, exact_splat_backward,
@@ -106,7 +106,8 @@ impl Detector {
 
 /// Per-view preparation of every Gaussian.
 enum Prepared {
-    Affine(Vec<Option<PixelSplat>>, Vec<f64>),
+    /// Pixel splats, and per Gaussian its μ and `Σ₂D⁻¹` as `[a, b, c]` (f64, for the backward).
+    Affine(Vec<Option<PixelSplat>>, Vec<(f64, [f64; 3])>),
     Exact(Vec<Option<(ExactSplat, [usize; 4])>>),
 }
 
@@ -129,15 +130,16 @@ fn prepare(
     match opts.mode {
         ProjectionMode::Affine => {
             let near = opts.near_fraction * cam.sdd;
-            let items: Vec<(Option<PixelSplat>, f64, Option<TileBox>)> = (0..k)
+            type Item = (Option<PixelSplat>, (f64, [f64; 3]), Option<TileBox>);
+            let items: Vec<Item> = (0..k)
                 .into_par_iter()
                 .map(|i| {
                     if g.densities_of(i).is_none() {
-                        return (None, 0.0, None);
+                        return (None, (0.0, [0.0; 3]), None);
                     }
                     let off = screen_offset(screen, k, view, i);
                     let Some(s) = gm::splat(&g.geom(i), cam, off, opts.cutoff, near) else {
-                        return (None, 0.0, None);
+                        return (None, (0.0, [0.0; 3]), None);
                     };
                     let bb = [
                         s.mean[0] - s.half_extent[0],
@@ -146,7 +148,7 @@ fn prepare(
                         s.mean[1] + s.half_extent[1],
                     ];
                     let Some((px, tb)) = det.boxes(bb) else {
-                        return (None, 0.0, None);
+                        return (None, (0.0, [0.0; 3]), None);
                     };
                     let ps = PixelSplat {
                         mx: s.mean[0] as f32,
@@ -161,9 +163,9 @@ fn prepare(
                     };
                     let ok = ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite();
                     if ok {
-                        (Some(ps), s.mu, Some(tb))
+                        (Some(ps), (s.mu, s.conic_mat), Some(tb))
                     } else {
-                        (None, 0.0, None)
+                        (None, (0.0, [0.0; 3]), None)
                     }
                 })
                 .collect();
@@ -216,42 +218,247 @@ fn row_span(s: &PixelSplat, dy: f32, cut2: f32, x0: usize, x1: usize) -> Option<
     (lo < hi).then_some((lo as usize, hi as usize))
 }
 
-/// Visit the rows of `s` inside tile rect `r`: `f(local_start, xs, dy, e)` where `e[j]` is
-/// `G = exp(−½ dᵀ Σ₂D⁻¹ d)` at pixel `xs + j` of the row (0 beyond the cut-off) and
-/// `local_start` is the tile-local index of pixel `xs`. Only the row's chord of the cut-off
-/// ellipse is evaluated (π/4 of the bounding box for a round footprint, far less for thin
-/// oblique ones), branch-free in a fixed-size buffer so the compiler can vectorise it.
+/// Tile-buffer elements per channel: rows are stored `TILE` wide whatever the tile's width (the
+/// columns past a detector edge stay 0), so every row loop has the fixed trip count `TILE`.
+const TILE_PIXELS: usize = TILE * TILE;
+
+/// Pixel box `[x0, x1) × [y0, y1)` of `s` clipped to tile rect `r`, or `None` if empty.
 #[inline(always)]
-fn affine_rows(
-    s: &PixelSplat,
-    r: (usize, usize, usize, usize),
-    cut2: f32,
-    mut f: impl FnMut(usize, usize, f32, &[f32]),
-) {
+fn clip(s: &PixelSplat, r: (usize, usize, usize, usize)) -> Option<(usize, usize, usize, usize)> {
     let (x0, x1) = ((s.x0 as usize).max(r.0), (s.x1 as usize).min(r.1));
     let (y0, y1) = ((s.y0 as usize).max(r.2), (s.y1 as usize).min(r.3));
-    if x0 >= x1 {
-        return;
+    (x0 < x1 && y0 < y1).then_some((x0, x1, y0, y1))
+}
+
+/// One tile row of `s` at `dy = y − my` (pixels): `e[j] = G = exp(−½ dᵀ Σ₂D⁻¹ d)` at column
+/// `c0 + j` (`c0` the tile's first column), exactly 0 beyond the cut-off (`dᵀ Σ₂D⁻¹ d > cut²`)
+/// and outside the splat's clipped columns `[x0, x1)`; `None` if the row misses the cut-off
+/// ellipse. The row is evaluated across the full tile width with masks instead of a
+/// variable-length loop over its chord: no scalar remainder, no per-row square root or
+/// division, so the loop runs in full SIMD registers (2 × 8 lanes with AVX2).
+#[inline(always)]
+fn affine_row<F: MulAdd>(
+    s: &PixelSplat,
+    c0: usize,
+    dy: f32,
+    cut2: f32,
+    x0: usize,
+    x1: usize,
+) -> Option<[f32; TILE]> {
+    let gdy = s.gamma * dy * dy;
+    if (cut2 - gdy).partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return None;
     }
-    let tw = r.1 - r.0;
+    // Lane range [ls, le) of the clipped columns, as floats for a conversion-free compare.
+    let (ls, le) = ((x0 - c0) as f32, (x1 - c0) as f32);
+    let dx0 = c0 as f32 - s.mx;
+    let bdy = s.beta * dy;
     let mut e = [0.0f32; TILE];
-    for y in y0..y1 {
-        let dy = y as f32 - s.my;
-        let Some((xs, xe)) = row_span(s, dy, cut2, x0, x1) else {
-            continue;
-        };
-        let n = xe - xs;
-        let dx0 = xs as f32 - s.mx;
-        let gdy = s.gamma * dy * dy;
-        let bdy = s.beta * dy;
-        for (ej, &j) in e[..n].iter_mut().zip(&IOTA) {
+    // Evaluate only the 8-lane halves that hold clipped columns (one AVX2 register each).
+    for h in half_range(x0 - c0, x1 - c0) {
+        let lanes = h..h + HALF;
+        for (ej, &j) in e[lanes.clone()].iter_mut().zip(&IOTA[lanes]) {
             let d = dx0 + j + bdy;
-            let q = s.a * d * d + gdy;
-            let v = super::exp_neg(-0.5 * q);
-            *ej = if q <= cut2 { v } else { 0.0 };
+            let q = F::mul_add(s.a * d, d, gdy);
+            let v = exp_neg_with::<F>(-0.5 * q);
+            *ej = if q <= cut2 && j >= ls && j < le {
+                v
+            } else {
+                0.0
+            };
         }
-        f((y - r.2) * tw + xs - r.0, xs, dy, &e[..n]);
     }
+    Some(e)
+}
+
+/// Lanes per evaluation block of the row kernels: one AVX2 register of f32.
+const HALF: usize = TILE / 2;
+
+/// First lanes of the `HALF`-lane blocks that hold tile columns `[l0, l1)` (`l1 ≤ TILE`).
+#[inline(always)]
+fn half_range(l0: usize, l1: usize) -> std::iter::StepBy<std::ops::Range<usize>> {
+    (l0 / HALF * HALF..l1).step_by(HALF)
+}
+
+/// Test hook: while set, the dispatchers take the baseline path even on AVX2 CPUs (both paths
+/// give bit-identical results, so other tests running meanwhile are unaffected).
+#[cfg(test)]
+pub(crate) static FORCE_BASELINE: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
+
+/// Whether the running CPU has AVX2 and FMA (checked once; the row loops then run 8 lanes wide).
+fn has_avx2() -> bool {
+    #[cfg(test)]
+    if FORCE_BASELINE.load(std::sync::atomic::Ordering::Relaxed) {
+        return false;
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        *HAS.get_or_init(|| is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Generates a dispatcher `$name` over one body compiled twice: for the build's baseline target
+/// with unfused multiply-adds (`F` = [`Separate`]) and with AVX2+FMA enabled and fused ones
+/// (`F` = [`Fused`]), chosen at run time by [`has_avx2`]. The variants differ in rounding only.
+macro_rules! dispatched {
+    ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
+        $(#[$doc])*
+        #[allow(clippy::too_many_arguments)]
+        fn $name($($arg: $ty),*) {
+            #[inline(always)]
+            #[allow(clippy::too_many_arguments)]
+            fn body<F: MulAdd>($($arg: $ty),*) $body
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,fma")]
+            #[allow(clippy::too_many_arguments)]
+            fn wide($($arg: $ty),*) {
+                body::<Fused>($($arg),*)
+            }
+            #[cfg(target_arch = "x86_64")]
+            if has_avx2() {
+                // SAFETY: `has_avx2` verified that the CPU supports AVX2 and FMA.
+                return unsafe { wide($($arg),*) };
+            }
+            body::<Separate>($($arg),*)
+        }
+    };
+}
+
+dispatched! {
+    /// Forward splat of `s` into the tile buffer `buf` (`[M][tile pixels]`) of tile rect `r`
+    /// with per-channel weights `w[c] = ρ_c μ`.
+    fn splat_forward(
+        s: &PixelSplat,
+        r: (usize, usize, usize, usize),
+        cut2: f32,
+        w: &[f32],
+        buf: &mut [f32],
+    ) {
+        let Some((x0, x1, y0, y1)) = clip(s, r) else {
+            return;
+        };
+        let halves = half_range(x0 - r.0, x1 - r.0);
+        for y in y0..y1 {
+            let Some(e) = affine_row::<F>(s, r.0, y as f32 - s.my, cut2, x0, x1) else {
+                continue;
+            };
+            let p = (y - r.2) * TILE;
+            for (c, &w) in w.iter().enumerate() {
+                for h in halves.clone() {
+                    let o = c * TILE_PIXELS + p + h;
+                    let row: &mut [f32; HALF] =
+                        (&mut buf[o..o + HALF]).try_into().expect("HALF-wide block");
+                    for (b, &e) in row.iter_mut().zip(&e[h..h + HALF]) {
+                        // Select, not multiply: lanes outside the ellipse stay 0 even for w = ∞.
+                        *b += if e != 0.0 { w * e } else { 0.0 };
+                    }
+                }
+            }
+        }
+    }
+}
+
+dispatched! {
+    /// Backward partial sums of splat `s` over tile rect `r` into `acc`
+    /// (`[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
+    /// [`project_backward`]) from the tile's upstream gradient `gt` (`[M][tile pixels]`).
+    /// `lanes` and `mom` are scratch (any contents on entry).
+    fn splat_backward(
+        s: &PixelSplat,
+        r: (usize, usize, usize, usize),
+        cut2: f32,
+        gt: &[f32],
+        dens: &[f32],
+        lanes: &mut [[f32; TILE]],
+        mom: &mut [[f32; TILE]; 3],
+        acc: &mut [f64],
+    ) {
+        let m = dens.len();
+        let dx0 = r.0 as f32 - s.mx;
+        // Per-lane (pixel column) partial sums, reduced once per pair, so the row loops are
+        // element-wise and vectorise: `lanes` = S_c per column, `mom` = Σ_rows wG, Σ_rows wG dy,
+        // Σ_rows wG dy² per column. A column's dx is fixed, so the dx moments follow at the
+        // reduction: Σ wG dx = Σ_col dx·(Σ_rows wG), and so on.
+        lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
+        *mom = [[0.0; TILE]; 3];
+        let Some((x0, x1, y0, y1)) = clip(s, r) else {
+            return;
+        };
+        let halves = half_range(x0 - r.0, x1 - r.0);
+        for y in y0..y1 {
+            let dy = y as f32 - s.my;
+            let Some(e) = affine_row::<F>(s, r.0, dy, cut2, x0, x1) else {
+                continue;
+            };
+            let p = (y - r.2) * TILE;
+            for h in halves.clone() {
+                let mut wge = [0.0f32; HALF];
+                for c in 0..m {
+                    let o = c * TILE_PIXELS + p + h;
+                    let gc: &[f32; HALF] =
+                        (&gt[o..o + HALF]).try_into().expect("HALF-wide block");
+                    let rho = dens[c];
+                    let lane = &mut lanes[c][h..h + HALF];
+                    for j in 0..HALF {
+                        // Select: a non-finite upstream gradient outside the ellipse gives 0.
+                        let ge = if e[h + j] != 0.0 { gc[j] * e[h + j] } else { 0.0 };
+                        lane[j] += ge;
+                        wge[j] += rho * ge;
+                    }
+                }
+                let [lw, ly, lyy] = &mut *mom;
+                for j in 0..HALF {
+                    let w = wge[j];
+                    let wy = w * dy;
+                    lw[h + j] += w;
+                    ly[h + j] += wy;
+                    lyy[h + j] += wy * dy;
+                }
+            }
+        }
+        // Reduce only the blocks that were accumulated (the others hold zeros).
+        acc[..m + 5].fill(0.0);
+        for h in halves {
+            for c in 0..m {
+                acc[c] += sum_lanes(widen(&lanes[c][h..h + HALF]));
+            }
+            let [lw, ly, lyy] = [0, 1, 2].map(|q| widen(&mom[q][h..h + HALF]));
+            let dx: [f64; HALF] = std::array::from_fn(|j| (dx0 + IOTA[h + j]) as f64);
+            let x: [f64; HALF] = std::array::from_fn(|j| dx[j] * lw[j]);
+            acc[m] += sum_lanes(x);
+            acc[m + 1] += sum_lanes(ly);
+            acc[m + 2] += sum_lanes(std::array::from_fn(|j| dx[j] * x[j]));
+            acc[m + 3] += sum_lanes(std::array::from_fn(|j| dx[j] * ly[j]));
+            acc[m + 4] += sum_lanes(lyy);
+        }
+    }
+}
+
+/// The first `HALF` lanes of `v` as f64.
+#[inline(always)]
+fn widen(v: &[f32]) -> [f64; HALF] {
+    std::array::from_fn(|j| v[j] as f64)
+}
+
+/// Sum of `HALF` lanes, pairwise (halving element-wise): independent adds that vectorise,
+/// instead of a serial chain of dependent adds per partial sum.
+#[inline(always)]
+fn sum_lanes(v: [f64; HALF]) -> f64 {
+    let mut a = v;
+    let mut w = HALF / 2;
+    while w > 0 {
+        for j in 0..w {
+            a[j] += a[j + w];
+        }
+        w /= 2;
+    }
+    a[0]
 }
 
 /// Visit the pixels of an exact splat inside tile rect `r`: `f(local_index, col, row)`.
@@ -263,10 +470,9 @@ fn exact_pixels(
 ) {
     let (x0, x1) = (px[0].max(r.0), px[1].min(r.1));
     let (y0, y1) = (px[2].max(r.2), px[3].min(r.3));
-    let tw = r.1 - r.0;
     for y in y0..y1 {
         for x in x0..x1 {
-            f((y - r.2) * tw + x - r.0, x, y);
+            f((y - r.2) * TILE + x - r.0, x, y);
         }
     }
 }
@@ -300,7 +506,7 @@ pub fn project_forward(
             .into_par_iter()
             .map(|t| {
                 let r = det.tile_rect(t);
-                let n = (r.1 - r.0) * (r.3 - r.2);
+                let n = TILE_PIXELS;
                 let mut buf = vec![0.0f32; m * n];
                 let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
                 match &prep {
@@ -315,18 +521,9 @@ pub fn project_forward(
                         for &(gi, ref s) in &local {
                             let dens = &g.densities[m * gi..m * gi + m];
                             for c in 0..m {
-                                w[c] = (dens[c] as f64 * mus[gi]) as f32;
+                                w[c] = (dens[c] as f64 * mus[gi].0) as f32;
                             }
-                            affine_rows(s, r, cut2 as f32, |p, _, _, e| {
-                                for c in 0..m {
-                                    let w = w[c];
-                                    for (b, e) in
-                                        buf[c * n + p..c * n + p + e.len()].iter_mut().zip(e)
-                                    {
-                                        *b += w * e;
-                                    }
-                                }
-                            });
+                            splat_forward(s, r, cut2 as f32, &w, &mut buf);
                         }
                     }
                     Prepared::Exact(splats) => {
@@ -361,10 +558,11 @@ pub fn project_forward(
         for (t, buf) in tiles.iter().enumerate() {
             let r = det.tile_rect(t);
             let tw = r.1 - r.0;
-            let n = tw * (r.3 - r.2);
+            let n = TILE_PIXELS;
             for c in 0..m {
                 for y in r.2..r.3 {
-                    let src = &buf[c * n + (y - r.2) * tw..c * n + (y - r.2 + 1) * tw];
+                    let o = c * n + (y - r.2) * TILE;
+                    let src = &buf[o..o + tw];
                     let dst = c * plane + y * det.cols + r.0;
                     view_out[dst..dst + tw].copy_from_slice(src);
                 }
@@ -418,17 +616,17 @@ pub fn project_backward(
             let tw = r.1 - r.0;
             let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
             // The tile's upstream gradient, gathered once: [M][pixels].
-            let n = tw * (r.3 - r.2);
+            let n = TILE_PIXELS;
             let mut gt = vec![0.0f32; m * n];
             for c in 0..m {
                 for y in r.2..r.3 {
                     let src = c * plane + y * det.cols + r.0;
-                    gt[c * n + (y - r.2) * tw..c * n + (y - r.2 + 1) * tw]
-                        .copy_from_slice(&gview[src..src + tw]);
+                    let o = c * n + (y - r.2) * TILE;
+                    gt[o..o + tw].copy_from_slice(&gview[src..src + tw]);
                 }
             }
             let mut lanes = vec![[0.0f32; TILE]; m];
-            let mut mom = [[0.0f32; TILE]; 5];
+            let mut mom = [[0.0f32; TILE]; 3];
             // Gather the tile's affine splats first (see the forward pass).
             let local: Vec<Option<PixelSplat>> = match &prep {
                 Prepared::Affine(splats, _) => list.iter().map(|&gi| splats[gi as usize]).collect(),
@@ -441,42 +639,7 @@ pub fn project_backward(
                 match &prep {
                     Prepared::Affine(..) => {
                         let Some(s) = &local[j] else { continue };
-                        // Per-lane (pixel column) partial sums, reduced once per pair, so the row
-                        // loops are element-wise and vectorise: [S_0..S_{M-1}, x, y, xx, xy, yy].
-                        lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
-                        affine_rows(s, r, cut2 as f32, |p, x0, dy, e| {
-                            let k = e.len().min(TILE);
-                            let mut wge = [0.0f32; TILE];
-                            for c in 0..m {
-                                let gc = &gt[c * n + p..c * n + p + k];
-                                let rho = dens[c];
-                                let lane = &mut lanes[c];
-                                for j in 0..k {
-                                    let ge = gc[j] * e[j];
-                                    lane[j] += ge;
-                                    wge[j] += rho * ge;
-                                }
-                            }
-                            let dx0 = x0 as f32 - s.mx;
-                            let [lx, ly, lxx, lxy, lyy] = &mut mom;
-                            for j in 0..k {
-                                let w = wge[j];
-                                let dx = dx0 + IOTA[j];
-                                let wx = w * dx;
-                                lx[j] += wx;
-                                ly[j] += w * dy;
-                                lxx[j] += wx * dx;
-                                lxy[j] += wx * dy;
-                                lyy[j] += w * dy * dy;
-                            }
-                        });
-                        for c in 0..m {
-                            acc[c] = lanes[c].iter().map(|&v| v as f64).sum();
-                        }
-                        for q in 0..5 {
-                            acc[m + q] = mom[q].iter().map(|&v| v as f64).sum();
-                            mom[q] = [0.0; TILE];
-                        }
+                        splat_backward(s, r, cut2 as f32, &gt, dens, &mut lanes, &mut mom, acc);
                     }
                     Prepared::Exact(splats) => {
                         let Some((s, px)) = &splats[gi] else { continue };
@@ -533,10 +696,8 @@ pub fn project_backward(
                 let off = screen_offset(screen, k, v, i);
                 let (geo, g_dens, g_screen) = match &prep {
                     Prepared::Affine(_, mus) => {
-                        let mu = mus[i];
+                        let (mu, [ca, cb, cc]) = mus[i];
                         let g_mu: f64 = (0..m).map(|c| dens[c] as f64 * sum[c]).sum();
-                        let s = gm::splat(&geom, cam, off, opts.cutoff, near)?;
-                        let [ca, cb, cc] = s.conic_mat;
                         let (wx, wy) = (sum[m], sum[m + 1]);
                         let sg = SplatGrad {
                             mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
