@@ -6,6 +6,31 @@ mod flex;
 #[cfg(feature = "ndarray")]
 mod ndarray;
 
+/// Borrow the four Gaussian parameter buffers of a CPU backend as [`crate::cpu::GaussianSlices`]
+/// bound to `$g` while `$body` runs.
+macro_rules! with_gaussians {
+    ($read:path, $means:expr, $scales:expr, $rotations:expr, $densities:expr, $channels:expr,
+     |$g:ident| $body:expr) => {
+        $read($means, |means| {
+            $read($scales, |scales| {
+                $read($rotations, |rotations| {
+                    $read($densities, |densities| {
+                        let $g = $crate::cpu::GaussianSlices {
+                            means,
+                            scales,
+                            rotations,
+                            densities,
+                            channels: $channels,
+                        };
+                        $body
+                    })
+                })
+            })
+        })
+    };
+}
+pub(crate) use with_gaussians;
+
 /// Implements [`crate::GaussianOps`] for a CPU backend given `read(&tensor, |&[f32]| ..)`,
 /// `write(Vec<f32>, shape)` and `dims(&tensor) -> Vec<usize>`.
 macro_rules! impl_cpu_gaussian_ops {
@@ -21,24 +46,17 @@ macro_rules! impl_cpu_gaussian_ops {
                 options: $crate::ProjectOptions,
             ) -> FloatTensor<Self> {
                 let channels = $dims(&densities)[1];
-                let out = $read(&means, |means| {
-                    $read(&scales, |scales| {
-                        $read(&rotations, |rotations| {
-                            $read(&densities, |densities| {
-                                $read(&screen, |screen| {
-                                    let g = $crate::cpu::GaussianSlices {
-                                        means,
-                                        scales,
-                                        rotations,
-                                        densities,
-                                        channels,
-                                    };
-                                    $crate::cpu::project_forward(&g, screen, &cameras, &options)
-                                })
-                            })
-                        })
+                let out = $crate::backend::with_gaussians!(
+                    $read,
+                    &means,
+                    &scales,
+                    &rotations,
+                    &densities,
+                    channels,
+                    |g| $read(&screen, |screen| {
+                        $crate::cpu::project_forward(&g, screen, &cameras, &options)
                     })
-                });
+                );
                 let (rows, cols) = cameras.first().map_or((0, 0), |c| (c.rows, c.cols));
                 $write(out, vec![cameras.len(), channels, rows, cols])
             }
@@ -61,28 +79,19 @@ macro_rules! impl_cpu_gaussian_ops {
             ) {
                 let k = $dims(&means)[0];
                 let channels = $dims(&densities)[1];
-                let g = $read(&means, |means| {
-                    $read(&scales, |scales| {
-                        $read(&rotations, |rotations| {
-                            $read(&densities, |densities| {
-                                $read(&screen, |screen| {
-                                    $read(&grad, |grad| {
-                                        let g = $crate::cpu::GaussianSlices {
-                                            means,
-                                            scales,
-                                            rotations,
-                                            densities,
-                                            channels,
-                                        };
-                                        $crate::cpu::project_backward(
-                                            &g, screen, &cameras, &options, grad,
-                                        )
-                                    })
-                                })
-                            })
+                let g = $crate::backend::with_gaussians!(
+                    $read,
+                    &means,
+                    &scales,
+                    &rotations,
+                    &densities,
+                    channels,
+                    |g| $read(&screen, |screen| {
+                        $read(&grad, |grad| {
+                            $crate::cpu::project_backward(&g, screen, &cameras, &options, grad)
                         })
                     })
-                });
+                );
                 (
                     $write(g.means, vec![k, 3]),
                     $write(g.scales, vec![k, 3]),
@@ -101,22 +110,15 @@ macro_rules! impl_cpu_gaussian_ops {
                 options: $crate::VoxelizeOptions,
             ) -> FloatTensor<Self> {
                 let channels = $dims(&densities)[1];
-                let out = $read(&means, |means| {
-                    $read(&scales, |scales| {
-                        $read(&rotations, |rotations| {
-                            $read(&densities, |densities| {
-                                let g = $crate::cpu::GaussianSlices {
-                                    means,
-                                    scales,
-                                    rotations,
-                                    densities,
-                                    channels,
-                                };
-                                $crate::cpu::voxelize_forward(&g, &grid, &options)
-                            })
-                        })
-                    })
-                });
+                let out = $crate::backend::with_gaussians!(
+                    $read,
+                    &means,
+                    &scales,
+                    &rotations,
+                    &densities,
+                    channels,
+                    |g| $crate::cpu::voxelize_forward(&g, &grid, &options)
+                );
                 let [nx, ny, nz] = grid.dims;
                 $write(out, vec![channels, nz, ny, nx])
             }
@@ -137,24 +139,17 @@ macro_rules! impl_cpu_gaussian_ops {
             ) {
                 let k = $dims(&means)[0];
                 let channels = $dims(&densities)[1];
-                let g = $read(&means, |means| {
-                    $read(&scales, |scales| {
-                        $read(&rotations, |rotations| {
-                            $read(&densities, |densities| {
-                                $read(&grad, |grad| {
-                                    let g = $crate::cpu::GaussianSlices {
-                                        means,
-                                        scales,
-                                        rotations,
-                                        densities,
-                                        channels,
-                                    };
-                                    $crate::cpu::voxelize_backward(&g, &grid, &options, grad)
-                                })
-                            })
-                        })
+                let g = $crate::backend::with_gaussians!(
+                    $read,
+                    &means,
+                    &scales,
+                    &rotations,
+                    &densities,
+                    channels,
+                    |g| $read(&grad, |grad| {
+                        $crate::cpu::voxelize_backward(&g, &grid, &options, grad)
                     })
-                });
+                );
                 (
                     $write(g.means, vec![k, 3]),
                     $write(g.scales, vec![k, 3]),
