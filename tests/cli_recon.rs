@@ -1,21 +1,10 @@
 //! End-to-end: simulate a small scene, reconstruct it with each classic method through the
 //! `prism` binary, and check the run directory and the `metrics.json` contract.
 
-use std::path::Path;
-use std::process::Command;
+mod common;
 
-fn prism(args: &[&str]) -> (bool, String) {
-    let o = Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(args)
-        .output()
-        .expect("prism runs");
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    (o.status.success(), text)
-}
+use common::prism;
+use std::path::Path;
 
 const SCENE: &str = r#"
 name: tiny-recon

@@ -1,23 +1,10 @@
 //! End-to-end: the `prism` binary simulates a small scene, inspects it, and refuses bad input
 //! with an error that names the file and the field, leaving nothing half-written.
 
+mod common;
+
+use common::prism;
 use std::path::Path;
-use std::process::{Command, Output};
-
-fn prism(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_prism"))
-        .args(args)
-        .output()
-        .expect("prism runs")
-}
-
-fn text(o: &Output) -> String {
-    format!(
-        "{}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
 
 const TINY: &str = r#"
 name: tiny-cli
@@ -48,8 +35,8 @@ fn simulate_then_info() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = write(dir.path(), "tiny.yaml", TINY);
     let out = dir.path().join("scene");
-    let o = prism(&["simulate", &cfg, "-o", out.to_str().unwrap()]);
-    assert!(o.status.success(), "{}", text(&o));
+    let (ok, t) = prism(&["simulate", &cfg, "-o", out.to_str().unwrap()]);
+    assert!(ok, "{t}");
     for f in [
         "scene.yaml",
         "projections.npy",
@@ -58,9 +45,8 @@ fn simulate_then_info() {
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
-    let o = prism(&["info", out.to_str().unwrap()]);
-    assert!(o.status.success(), "{}", text(&o));
-    let t = text(&o);
+    let (ok, t) = prism(&["info", out.to_str().unwrap()]);
+    assert!(ok, "{t}");
     for needle in [
         "tiny-cli",
         "24 rows × 32 cols",
@@ -93,9 +79,8 @@ fn bad_input_fails_cleanly_and_names_the_field() {
     ];
     for (body, field) in cases {
         let cfg = write(dir.path(), "bad.yaml", &body);
-        let o = prism(&["simulate", &cfg, "-o", out.to_str().unwrap()]);
-        let t = text(&o);
-        assert!(!o.status.success(), "expected failure for {field}");
+        let (ok, t) = prism(&["simulate", &cfg, "-o", out.to_str().unwrap()]);
+        assert!(!ok, "expected failure for {field}");
         assert!(t.contains(field), "`{field}` not named in: {t}");
         assert!(
             t.contains("bad.yaml"),
@@ -103,13 +88,13 @@ fn bad_input_fails_cleanly_and_names_the_field() {
         );
         assert!(!out.exists(), "nothing may be written on failure");
     }
-    let o = prism(&[
+    let (ok, t) = prism(&[
         "simulate",
         "/nonexistent/x.yaml",
         "-o",
         out.to_str().unwrap(),
     ]);
-    assert!(!o.status.success() && text(&o).contains("/nonexistent/x.yaml"));
-    let o = prism(&["info", dir.path().join("nowhere").to_str().unwrap()]);
-    assert!(!o.status.success() && text(&o).contains("nowhere"));
+    assert!(!ok && t.contains("/nonexistent/x.yaml"), "{t}");
+    let (ok, t) = prism(&["info", dir.path().join("nowhere").to_str().unwrap()]);
+    assert!(!ok && t.contains("nowhere"), "{t}");
 }
