@@ -1,27 +1,31 @@
-//! `prism recon <config.yaml> -s <scene_dir> -o <run_dir>`: classic reconstruction (FDK, the SART
-//! family, CGLS) of every channel of a scene; see `prism_core::classic::recon`.
+//! `prism recon <config.yaml> -s <scene_dir> -o <run_dir>`: reconstruct every channel of a scene
+//! with a classic method (`fdk | sart | cgls`, see `prism_core::classic::recon`) or a Gaussian
+//! one (`r2gs | 4dsg-stage1`, see `prism_core::gaussian::run`).
 
-use prism_core::classic::recon::{self, METRICS_FILE, ReconConfig};
+use prism_core::classic::recon::METRICS_FILE;
+use prism_core::gaussian::cpu_device;
+use prism_core::method::MethodConfig;
 use prism_core::scene::Scene;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct ReconArgs {
-    /// Reconstruction config (YAML): `method: fdk | sart | cgls` plus optional `filter`,
-    /// `iterations`, `block_size`, `lambda`, `lambda_decay`, `order`, `nonneg`, `seed`.
+    /// Reconstruction config (YAML) with `method: fdk | sart | cgls | r2gs | 4dsg-stage1` and that
+    /// method's settings (see configs/recon/).
     config: PathBuf,
     /// Scene directory (scene.yaml + .npy arrays).
     #[arg(short = 's', long = "scene")]
     scene: PathBuf,
-    /// Run directory for `<label>.npy` volumes, `config.resolved.yaml` and `metrics.json`.
+    /// Run directory for `<label>.npy` volumes, `config.resolved.yaml` and `metrics.json`
+    /// (Gaussian methods add `log.jsonl`, `train.json` and the trained Gaussians).
     #[arg(short = 'o', long = "out")]
     out: PathBuf,
 }
 
 pub fn run(args: ReconArgs) -> anyhow::Result<()> {
-    let config = ReconConfig::load(&args.config)?;
+    let config = MethodConfig::load(&args.config)?;
     let scene = Scene::load(&args.scene)?;
-    match recon::run(&config, &scene, &args.out)? {
+    match config.run(&scene, &args.out, &cpu_device())? {
         Some(report) => {
             for c in &report.channels {
                 eprintln!(

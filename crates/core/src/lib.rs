@@ -6,7 +6,9 @@
 
 pub mod classic;
 pub mod error;
+pub mod gaussian;
 pub mod geometry;
+pub mod method;
 pub mod metrics;
 pub mod phantom;
 pub mod physics;

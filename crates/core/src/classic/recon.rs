@@ -241,7 +241,7 @@ pub fn reconstruct_channel(
 }
 
 /// File-name-safe form of a channel label.
-fn file_stem(label: &str) -> String {
+pub fn file_stem(label: &str) -> String {
     label
         .chars()
         .map(|c| {
@@ -254,21 +254,10 @@ fn file_stem(label: &str) -> String {
         .collect()
 }
 
-/// Reconstruct every channel of `scene` into `out_dir` (see the module docs). Returns the report
-/// written to `metrics.json`, or `None` when the scene has no references.
-pub fn run(config: &ReconConfig, scene: &Scene, out_dir: &Path) -> Result<Option<ReconReport>> {
-    config.validate()?;
-    scene.validate()?;
-    let unseen = check_fov(&scene.geometry).map_err(|e| e.under("geometry"))?;
-    if unseen > 0.0 {
-        eprintln!(
-            "warning: {:.1} % of the volume grid's voxels are seen by no ray; they stay at their \
-             initial value",
-            100.0 * unseen
-        );
-    }
-    // Views per channel, checked before any work.
-    let mut channel_views = Vec::new();
+/// The available training views of every channel (`split.train` ∩ availability); an error names
+/// a channel without any.
+pub fn channel_training_views(scene: &Scene) -> Result<Vec<Vec<usize>>> {
+    let mut out = Vec::new();
     for (c, ch) in scene.channels.iter().enumerate() {
         let views: Vec<usize> = scene
             .train_views()
@@ -282,8 +271,49 @@ pub fn run(config: &ReconConfig, scene: &Scene, out_dir: &Path) -> Result<Option
                 format!("channel `{}` has no available training view", ch.label),
             ));
         }
-        channel_views.push(views);
+        out.push(views);
     }
+    Ok(out)
+}
+
+/// Check the volume grid against the detector's field of view: an error when no voxel is seen,
+/// a warning with the unseen fraction otherwise. Returns the fraction.
+pub fn warn_fov(scene: &Scene) -> Result<f64> {
+    let unseen = check_fov(&scene.geometry).map_err(|e| e.under("geometry"))?;
+    if unseen > 0.0 {
+        eprintln!(
+            "warning: {:.1} % of the volume grid's voxels are seen by no ray; they stay at their \
+             initial value",
+            100.0 * unseen
+        );
+    }
+    Ok(unseen)
+}
+
+/// Write one channel's volume as `<dir>/<label>.npy` (float32, `[z][y][x]`, mm⁻¹).
+pub fn write_volume(out_dir: &Path, label: &str, vol: &Array3<f32>) -> Result<std::path::PathBuf> {
+    let path = out_dir.join(format!("{}.npy", file_stem(label)));
+    ndarray_npy::write_npy(&path, vol)
+        .map_err(|e| Error::field(&path, "data", format!("writing the volume failed: {e}")))?;
+    Ok(path)
+}
+
+/// Write `config.resolved.yaml` into the run directory.
+pub fn write_resolved<T: Serialize>(out_dir: &Path, config: &T) -> Result<()> {
+    let resolved = out_dir.join(RESOLVED_CONFIG_FILE);
+    let yaml = serde_yaml_ng::to_string(config)
+        .map_err(|e| Error::field(&resolved, ".", e.to_string()))?;
+    fs::write(&resolved, yaml).map_err(|e| Error::io(&resolved, e))
+}
+
+/// Reconstruct every channel of `scene` into `out_dir` (see the module docs). Returns the report
+/// written to `metrics.json`, or `None` when the scene has no references.
+pub fn run(config: &ReconConfig, scene: &Scene, out_dir: &Path) -> Result<Option<ReconReport>> {
+    config.validate()?;
+    scene.validate()?;
+    let unseen = warn_fov(scene)?;
+    // Views per channel, checked before any work.
+    let channel_views = channel_training_views(scene)?;
     fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     let iters = config.resolved_iterations();
     let bar = if iters > 0 {
@@ -309,21 +339,36 @@ pub fn run(config: &ReconConfig, scene: &Scene, out_dir: &Path) -> Result<Option
             &mut |_| bar.inc(1),
         )
         .map_err(|e| e.under(&format!("channels[{c}]")))?;
-        let path = out_dir.join(format!("{}.npy", file_stem(&ch.label)));
-        ndarray_npy::write_npy(&path, &vol)
-            .map_err(|e| Error::field(&path, "data", format!("writing the volume failed: {e}")))?;
+        write_volume(out_dir, &ch.label, &vol)?;
         volumes.push(vol);
     }
     let wall_s = start.elapsed().as_secs_f64();
     bar.finish_and_clear();
-    let resolved = out_dir.join(RESOLVED_CONFIG_FILE);
-    let yaml = serde_yaml_ng::to_string(&config.resolved())
-        .map_err(|e| Error::field(&resolved, ".", e.to_string()))?;
-    fs::write(&resolved, yaml).map_err(|e| Error::io(&resolved, e))?;
+    write_resolved(out_dir, &config.resolved())?;
+    write_metrics(
+        scene,
+        &volumes,
+        config.method.name(),
+        wall_s,
+        unseen,
+        out_dir,
+    )
+}
 
+/// Score per-channel volumes (mm⁻¹) against the scene's references and write `metrics.json`
+/// (see [`ReconReport`]); `None` when the scene has no references.
+pub fn write_metrics(
+    scene: &Scene,
+    volumes: &[Array3<f32>],
+    method: &str,
+    wall_s: f64,
+    unseen: f64,
+    out_dir: &Path,
+) -> Result<Option<ReconReport>> {
     let Some(refs) = &scene.references else {
         return Ok(None);
     };
+    let channel_views = channel_training_views(scene)?;
     let mut channels = Vec::new();
     for (c, ch) in scene.channels.iter().enumerate() {
         let truth = refs.index_axis(Axis(0), c);
@@ -361,7 +406,7 @@ pub fn run(config: &ReconConfig, scene: &Scene, out_dir: &Path) -> Result<Option
     }
     let n = channels.len() as f64;
     let report = ReconReport {
-        method: config.method.name().to_string(),
+        method: method.to_string(),
         scene: scene.name.clone(),
         wall_s,
         mean: MeanMetrics {
@@ -405,4 +450,4 @@ fn test_projection_metrics(
 
 #[cfg(test)]
 #[path = "recon_tests.rs"]
-mod tests;
+pub(crate) mod tests;

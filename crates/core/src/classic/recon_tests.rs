@@ -7,7 +7,7 @@ use ndarray::{Array2, Array4, Axis, stack};
 
 /// The built-in phantom (radius 22 mm) at 40 and 70 keV: 24 training + 4 test views, 24³ grid of
 /// 2 mm voxels, 40² detector; channel `70keV` is missing at training views 0, 3, 6, ….
-fn scene() -> Scene {
+pub(crate) fn scene() -> Scene {
     let mut angles = Geometry::full_turn(24);
     angles.extend([0.3, 1.9, 3.4, 5.0]);
     let geometry = Geometry {

@@ -1,0 +1,211 @@
+//! Saving and loading trained Gaussians.
+//!
+//! * **safetensors** (`.safetensors`, readable from Python with `safetensors.numpy.load_file`):
+//!   float32 tensors `means [K,3]`, `scales_raw [K,3]`, `rotations [K,4]` (w, x, y, z),
+//!   `densities_raw [K,M]` in the normalised world, plus string metadata `format`
+//!   (`prism-gaussians/1`), `world_scale` (normalised units per mm), `density_scale` (mm⁻¹ per
+//!   normalised density unit), `scale_min`, `scale_max` (normalised units) and `channels`
+//!   (JSON list of labels). Physical values: centre_mm = means / world_scale,
+//!   σ_mm = (min + (max − min)·sigmoid(scales_raw)) / world_scale,
+//!   μ (mm⁻¹) = softplus(densities_raw) · density_scale.
+//! * **PLY** (binary little-endian, for point-cloud viewers): per vertex `x y z` (mm),
+//!   `scale_0..2` (σ in mm), `rot_0..3` (unit quaternion w, x, y, z) and one `density_<c>`
+//!   property per channel (mm⁻¹).
+
+use super::host::{HostGaussians, ScaleBounds, softplus};
+use super::model::GaussianModel;
+use super::world::World;
+use crate::{Error, Result};
+use burn::tensor::Device;
+use safetensors::{Dtype, SafeTensors, tensor::TensorView};
+use std::collections::HashMap;
+use std::fs;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+const FORMAT: &str = "prism-gaussians/1";
+
+fn bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// Write `model` as safetensors (see the module docs).
+pub fn save_model(
+    path: &Path,
+    model: &GaussianModel,
+    world: &World,
+    labels: &[String],
+) -> Result<()> {
+    let h = model.to_host();
+    let k = h.len();
+    let data = [
+        ("means", bytes(&h.means), vec![k, 3]),
+        ("scales_raw", bytes(&h.scales), vec![k, 3]),
+        ("rotations", bytes(&h.rotations), vec![k, 4]),
+        ("densities_raw", bytes(&h.densities), vec![k, h.channels]),
+    ];
+    let views: Vec<(&str, TensorView)> = data
+        .iter()
+        .map(|(n, b, s)| {
+            TensorView::new(Dtype::F32, s.clone(), b)
+                .map(|v| (*n, v))
+                .map_err(|e| Error::field(path, n.to_string(), e.to_string()))
+        })
+        .collect::<Result<_>>()?;
+    let meta: HashMap<String, String> = [
+        ("format", FORMAT.to_string()),
+        ("world_scale", world.scale.to_string()),
+        ("density_scale", world.density_scale.to_string()),
+        ("scale_min", model.bounds.min.to_string()),
+        ("scale_max", model.bounds.max.to_string()),
+        (
+            "channels",
+            serde_json::to_string(labels).expect("labels serialise"),
+        ),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    safetensors::serialize_to_file(views, Some(meta), path)
+        .map_err(|e| Error::field(path, ".", format!("writing safetensors failed: {e}")))
+}
+
+/// A model read back from [`save_model`]'s file.
+pub struct LoadedModel {
+    pub model: GaussianModel,
+    pub world: World,
+    pub channels: Vec<String>,
+}
+
+/// Read a safetensors model; errors name the file and the tensor or metadata key.
+pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
+    let buf = fs::read(path).map_err(|e| Error::io(path, e))?;
+    let st = SafeTensors::deserialize(&buf)
+        .map_err(|e| Error::field(path, ".", format!("not a safetensors file: {e}")))?;
+    let (_, meta) = SafeTensors::read_metadata(&buf)
+        .map_err(|e| Error::field(path, ".", format!("unreadable header: {e}")))?;
+    let meta = meta.metadata().clone().unwrap_or_default();
+    let key = |k: &str| -> Result<&String> {
+        meta.get(k)
+            .ok_or_else(|| Error::field(path, format!("metadata.{k}"), "missing"))
+    };
+    if key("format")? != FORMAT {
+        return Err(Error::field(
+            path,
+            "metadata.format",
+            format!("expected `{FORMAT}`, got `{}`", key("format")?),
+        ));
+    }
+    let num = |k: &str| -> Result<f64> {
+        key(k)?
+            .parse::<f64>()
+            .map_err(|e| Error::field(path, format!("metadata.{k}"), e.to_string()))
+    };
+    let channels: Vec<String> = serde_json::from_str(key("channels")?)
+        .map_err(|e| Error::field(path, "metadata.channels", e.to_string()))?;
+    let tensor = |name: &str, cols: usize| -> Result<Vec<f32>> {
+        let t = st
+            .tensor(name)
+            .map_err(|e| Error::field(path, name, e.to_string()))?;
+        if t.dtype() != Dtype::F32 || t.shape().len() != 2 || t.shape()[1] != cols {
+            return Err(Error::field(
+                path,
+                name,
+                format!(
+                    "expected f32 [K, {cols}], got {:?} {:?}",
+                    t.dtype(),
+                    t.shape()
+                ),
+            ));
+        }
+        Ok(t.data()
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect())
+    };
+    let m = channels.len();
+    let host = HostGaussians {
+        channels: m,
+        means: tensor("means", 3)?,
+        scales: tensor("scales_raw", 3)?,
+        rotations: tensor("rotations", 4)?,
+        densities: tensor("densities_raw", m)?,
+    };
+    host.validate().map_err(|e| e.in_file(path))?;
+    let bounds = ScaleBounds {
+        min: num("scale_min")?,
+        max: num("scale_max")?,
+    };
+    bounds.validate().map_err(|e| e.in_file(path))?;
+    let world = World {
+        scale: num("world_scale")?,
+        density_scale: num("density_scale")?,
+    };
+    Ok(LoadedModel {
+        model: GaussianModel::new(&host, bounds, device),
+        world,
+        channels,
+    })
+}
+
+/// Write `model` as a binary PLY point cloud in physical units (see the module docs).
+pub fn write_ply(
+    path: &Path,
+    model: &GaussianModel,
+    world: &World,
+    labels: &[String],
+) -> Result<()> {
+    let h = model.to_host();
+    let k = h.len();
+    let m = h.channels;
+    let mut header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment Prism Gaussians: positions and scales in mm, densities in 1/mm\nelement vertex {k}\n"
+    );
+    for p in [
+        "x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
+    ] {
+        header += &format!("property float {p}\n");
+    }
+    for c in 0..m {
+        let label = labels.get(c).map(String::as_str).unwrap_or("");
+        let safe: String = label
+            .chars()
+            .map(|ch| if ch.is_ascii_alphanumeric() { ch } else { '_' })
+            .collect();
+        header += &format!("property float density_{c}_{safe}\n");
+    }
+    header += "end_header\n";
+    let io = |e| Error::io(path, e);
+    let file = fs::File::create(path).map_err(io)?;
+    let mut w = BufWriter::new(file);
+    w.write_all(header.as_bytes()).map_err(io)?;
+    let inv = 1.0 / world.scale;
+    for i in 0..k {
+        let q = &h.rotations[4 * i..4 * i + 4];
+        let qn = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+        let q: Vec<f32> = if qn > 0.0 {
+            q.iter().map(|v| v / qn).collect()
+        } else {
+            vec![1.0, 0.0, 0.0, 0.0]
+        };
+        let mut row: Vec<f32> = Vec::with_capacity(10 + m);
+        row.extend(
+            h.means[3 * i..3 * i + 3]
+                .iter()
+                .map(|&v| (v as f64 * inv) as f32),
+        );
+        row.extend(
+            h.scales[3 * i..3 * i + 3]
+                .iter()
+                .map(|&r| (model.bounds.activate(r as f64) * inv) as f32),
+        );
+        row.extend(q);
+        row.extend(
+            h.densities[m * i..m * i + m]
+                .iter()
+                .map(|&r| (softplus(r as f64) * world.density_scale) as f32),
+        );
+        w.write_all(&bytes(&row)).map_err(io)?;
+    }
+    w.flush().map_err(io)
+}

@@ -1,0 +1,97 @@
+//! The run log: one JSON object per line in `log.jsonl`, written as training goes, so error vs
+//! run time can be plotted for any method.
+
+use crate::{Error, Result};
+use serde::Serialize;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Name of the log file in a run directory.
+pub const LOG_FILE: &str = "log.jsonl";
+
+/// Loss terms (mean over the iterations since the previous record).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct LossTerms {
+    pub total: f64,
+    pub l1: f64,
+    pub dssim: f64,
+    pub tv: f64,
+}
+
+/// One line of `log.jsonl`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct LogRecord {
+    /// Training stage (`r2gs`, `geometry`, `densities`, …).
+    pub stage: String,
+    /// What the stage fits: a channel label, `structural`, or `all`.
+    pub channel: String,
+    /// Iteration within the stage (1-based).
+    pub iter: usize,
+    /// Seconds since the run started, evaluation included.
+    pub wall_s: f64,
+    /// Seconds since the run started, evaluation excluded.
+    pub train_s: f64,
+    pub loss: LossTerms,
+    pub n_gaussians: usize,
+    /// Mean 3-D PSNR (dB) / SSIM over the stage's channels, when references exist.
+    pub psnr: Option<f64>,
+    pub ssim: Option<f64>,
+}
+
+/// The run clock and the open log file.
+pub struct RunLog {
+    start: Instant,
+    eval_s: f64,
+    out: Option<(PathBuf, BufWriter<File>)>,
+}
+
+impl RunLog {
+    /// Start the clock and create `<dir>/log.jsonl` (truncating an old one).
+    pub fn create(dir: &Path) -> Result<Self> {
+        let path = dir.join(LOG_FILE);
+        let f = File::create(&path).map_err(|e| Error::io(&path, e))?;
+        Ok(RunLog {
+            start: Instant::now(),
+            eval_s: 0.0,
+            out: Some((path, BufWriter::new(f))),
+        })
+    }
+
+    /// A clock without a file (tests, benchmarks).
+    pub fn in_memory() -> Self {
+        RunLog {
+            start: Instant::now(),
+            eval_s: 0.0,
+            out: None,
+        }
+    }
+
+    pub fn wall_s(&self) -> f64 {
+        self.start.elapsed().as_secs_f64()
+    }
+
+    pub fn train_s(&self) -> f64 {
+        self.wall_s() - self.eval_s
+    }
+
+    /// Run `f` as evaluation: its time is excluded from `train_s`.
+    pub fn evaluating<T>(&mut self, f: impl FnOnce() -> T) -> T {
+        let t = Instant::now();
+        let out = f();
+        self.eval_s += t.elapsed().as_secs_f64();
+        out
+    }
+
+    pub fn write(&mut self, record: &LogRecord) -> Result<()> {
+        if let Some((path, w)) = &mut self.out {
+            let line = serde_json::to_string(record)
+                .map_err(|e| Error::field(path.as_path(), ".", e.to_string()))?;
+            writeln!(w, "{line}")
+                .and_then(|_| w.flush())
+                .map_err(|e| Error::io(path.as_path(), e))?;
+        }
+        Ok(())
+    }
+}
