@@ -25,13 +25,15 @@ impl MethodConfig {
             Some("fdk" | "sart" | "cgls") => {
                 ReconConfig::from_yaml(text, file).map(MethodConfig::Classic)
             }
-            Some("r2gs" | "4dsg-stage1") => {
+            Some("r2gs" | "4dsg-stage1" | "4dsg") => {
                 GaussianConfig::from_yaml(text, file).map(MethodConfig::Gaussian)
             }
             Some(other) => Err(Error::field(
                 file,
                 "method",
-                format!("unknown method `{other}` (expected fdk, sart, cgls, r2gs or 4dsg-stage1)"),
+                format!(
+                    "unknown method `{other}` (expected fdk, sart, cgls, r2gs, 4dsg-stage1 or 4dsg)"
+                ),
             )),
             None => Err(Error::field(file, "method", "missing (a string)")),
         }

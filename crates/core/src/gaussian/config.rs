@@ -1,10 +1,14 @@
 //! Configuration of the Gaussian methods (YAML), every hyperparameter with its default.
 
+use super::adam::LogLinear;
 use super::densify::DensifyConfig;
 use super::host::ScaleBounds;
 use super::init::InitConfig;
+use super::model::Learnable;
 use super::trainer::{LearningRates, LossConfig};
+use crate::scene::Scene;
 use crate::{Error, Result};
+use prism_gscnet::CurveModelConfig;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -18,6 +22,10 @@ pub enum GaussianMethod {
     /// fitted directly on the fixed geometry (no curve model).
     #[serde(rename = "4dsg-stage1")]
     Stage1,
+    /// 4D-SG: stage 1 (shared geometry), then stage 2 (the curve model predicts every
+    /// Gaussian's raw density curve over the spectral grid).
+    #[serde(rename = "4dsg")]
+    FourDsg,
 }
 
 impl GaussianMethod {
@@ -25,6 +33,7 @@ impl GaussianMethod {
         match self {
             GaussianMethod::R2gs => "r2gs",
             GaussianMethod::Stage1 => "4dsg-stage1",
+            GaussianMethod::FourDsg => "4dsg",
         }
     }
 }
@@ -75,13 +84,84 @@ pub struct GaussianConfig {
     pub eval_every: usize,
     #[serde(default)]
     pub structural: StructuralSource,
+    /// `4dsg`: stage 2 (curve model) settings.
+    #[serde(default)]
+    pub stage2: Stage2Config,
+    /// Channel labels left out of training entirely; spectral methods predict them from the
+    /// curve of the observed channels and score the prediction (`holdout.json`).
+    #[serde(default)]
+    pub holdout_channels: Vec<String>,
+}
+
+/// Which parameter groups stay fixed in stage 2 (the paper's freezing strategies).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Freeze {
+    pub position: bool,
+    pub rotation: bool,
+    pub scale: bool,
+    /// The common raw density u⁽ᶜ⁾.
+    pub density: bool,
+}
+
+impl Default for Freeze {
+    /// The paper's default: geometry fixed, common densities learnable.
+    fn default() -> Self {
+        Freeze {
+            position: true,
+            rotation: true,
+            scale: true,
+            density: false,
+        }
+    }
+}
+
+impl Freeze {
+    pub fn learnable(&self) -> Learnable {
+        Learnable {
+            position: !self.position,
+            rotation: !self.rotation,
+            scale: !self.scale,
+            density: !self.density,
+        }
+    }
+}
+
+/// Stage 2 of `4dsg` (YAML `stage2:`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Stage2Config {
+    /// Iterations (paper: 5000 after 30 000 of stage 1).
+    pub iterations: usize,
+    /// GSC-Net (`kind: gscnet`) or the direct MLP (`kind: mlp`) and their sizes.
+    pub curve_model: CurveModelConfig,
+    /// Weight of L_curve, the first-order smoothness of Δu along the spectral axis.
+    pub lambda_curve: f64,
+    /// Adam learning rate of the network (log-linear decay).
+    pub lr_network: LogLinear,
+    pub freeze: Freeze,
+}
+
+impl Default for Stage2Config {
+    fn default() -> Self {
+        Stage2Config {
+            iterations: 500,
+            curve_model: CurveModelConfig::default(),
+            lambda_curve: 0.01,
+            lr_network: LogLinear {
+                init: 1e-3,
+                end: 1e-4,
+            },
+            freeze: Freeze::default(),
+        }
+    }
 }
 
 fn default_iterations() -> usize {
-    3000
+    1500
 }
 fn default_density_iterations() -> usize {
-    1000
+    500
 }
 fn default_init() -> InitConfig {
     InitConfig {
@@ -98,7 +178,7 @@ fn default_bounds() -> ScaleBounds {
 fn default_densify() -> Option<DensifyConfig> {
     Some(DensifyConfig {
         from: 100,
-        until: 1500,
+        until: 750,
         ..DensifyConfig::default()
     })
 }
@@ -121,7 +201,59 @@ impl GaussianConfig {
             densify: default_densify(),
             eval_every: default_eval_every(),
             structural: StructuralSource::Auto,
+            stage2: Stage2Config::default(),
+            holdout_channels: Vec::new(),
         }
+    }
+
+    /// Indices of the held-out channels in `scene`; errors name unknown labels, held-out
+    /// channels at the ends of the spectral grid (they would need extrapolation), or a method
+    /// that cannot predict unobserved channels.
+    pub fn holdout_indices(&self, scene: &Scene) -> Result<Vec<usize>> {
+        if self.holdout_channels.is_empty() {
+            return Ok(Vec::new());
+        }
+        if self.method == GaussianMethod::R2gs {
+            return Err(Error::invalid(
+                "holdout_channels",
+                "r2gs reconstructs channels independently and cannot predict an unobserved one",
+            ));
+        }
+        let m = scene.n_channels();
+        let mut out = Vec::new();
+        for (i, label) in self.holdout_channels.iter().enumerate() {
+            let field = format!("holdout_channels[{i}]");
+            let c = scene
+                .channels
+                .iter()
+                .position(|ch| &ch.label == label)
+                .ok_or_else(|| {
+                    let known: Vec<&str> =
+                        scene.channels.iter().map(|c| c.label.as_str()).collect();
+                    Error::invalid(
+                        &field,
+                        format!("no channel `{label}` (channels: {known:?})"),
+                    )
+                })?;
+            if c == 0 || c + 1 == m {
+                return Err(Error::invalid(
+                    &field,
+                    format!(
+                        "`{label}` is at the end of the spectral grid: predicting it would need                          extrapolation; hold out an intermediate channel"
+                    ),
+                ));
+            }
+            out.push(c);
+        }
+        out.sort_unstable();
+        out.dedup();
+        if m - out.len() < 2 {
+            return Err(Error::invalid(
+                "holdout_channels",
+                "at least two observed channels must remain",
+            ));
+        }
+        Ok(out)
     }
 
     pub fn from_yaml(text: &str, file: &Path) -> Result<Self> {
@@ -152,6 +284,22 @@ impl GaussianConfig {
         self.loss.validate()?;
         if let Some(d) = &self.densify {
             d.validate()?;
+        }
+        if self.method == GaussianMethod::FourDsg {
+            let s2 = &self.stage2;
+            if s2.iterations == 0 {
+                return Err(Error::invalid("stage2.iterations", "must be at least 1"));
+            }
+            s2.curve_model
+                .validate()
+                .map_err(|e| Error::invalid("stage2.curve_model", e.to_string()))?;
+            if !(s2.lambda_curve.is_finite() && s2.lambda_curve >= 0.0) {
+                return Err(Error::invalid(
+                    "stage2.lambda_curve",
+                    format!("must be finite and ≥ 0, got {}", s2.lambda_curve),
+                ));
+            }
+            s2.lr_network.validate("stage2.lr_network")?;
         }
         Ok(())
     }

@@ -4,8 +4,9 @@
 //!   float32 tensors `means [K,3]`, `scales_raw [K,3]`, `rotations [K,4]` (w, x, y, z),
 //!   `densities_raw [K,M]` in the normalised world, plus string metadata `format`
 //!   (`prism-gaussians/1`), `world_scale` (normalised units per mm), `density_scale` (mm⁻¹ per
-//!   normalised density unit), `scale_min`, `scale_max` (normalised units) and `channels`
-//!   (JSON list of labels). Physical values: centre_mm = means / world_scale,
+//!   normalised density unit), `scale_min`, `scale_max` (normalised units) and `info` (JSON
+//!   [`ModelInfo`]: channel labels, τ and physical coordinates of the density columns, the scan
+//!   geometry). Physical values: centre_mm = means / world_scale,
 //!   σ_mm = (min + (max − min)·sigmoid(scales_raw)) / world_scale,
 //!   μ (mm⁻¹) = softplus(densities_raw) · density_scale.
 //! * **PLY** (binary little-endian, for point-cloud viewers): per vertex `x y z` (mm),
@@ -15,15 +16,45 @@
 use super::host::{HostGaussians, ScaleBounds, softplus};
 use super::model::GaussianModel;
 use super::world::World;
+use crate::geometry::Geometry;
 use crate::{Error, Result};
 use burn::tensor::Device;
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
+use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::fs;
 use std::io::{BufWriter, Write};
 use std::path::Path;
 
 const FORMAT: &str = "prism-gaussians/1";
+
+/// What the density columns mean and where the model lives (stored as JSON metadata `info`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelInfo {
+    /// One label per density column.
+    pub channels: Vec<String>,
+    /// τ ∈ [0, 1] of each column (increasing for spectral models).
+    pub tau: Vec<f64>,
+    /// Physical coordinate of each column (keV, kVp, λ, …) and its unit.
+    pub coordinates: Vec<f64>,
+    pub unit: String,
+    /// Coordinate values mapped to τ = 0 and τ = 1 (the scene's channel range).
+    pub coordinate_range: [f64; 2],
+    /// The scan geometry (millimetres), for voxelizing and rendering queries.
+    pub geometry: Geometry,
+}
+
+impl ModelInfo {
+    /// τ of a physical coordinate value.
+    pub fn tau_of(&self, value: f64) -> f64 {
+        let [lo, hi] = self.coordinate_range;
+        if hi > lo {
+            (value - lo) / (hi - lo)
+        } else {
+            0.0
+        }
+    }
+}
 
 fn bytes(v: &[f32]) -> Vec<u8> {
     v.iter().flat_map(|x| x.to_le_bytes()).collect()
@@ -33,10 +64,16 @@ fn bytes(v: &[f32]) -> Vec<u8> {
 pub fn save_model(
     path: &Path,
     model: &GaussianModel,
+    raw: Option<Vec<f32>>,
     world: &World,
-    labels: &[String],
+    info: &ModelInfo,
 ) -> Result<()> {
-    let h = model.to_host();
+    let mut h = model.to_host();
+    if let Some(r) = raw {
+        h.channels = info.channels.len();
+        h.densities = r;
+    }
+    h.validate().map_err(|e| e.in_file(path))?;
     let k = h.len();
     let data = [
         ("means", bytes(&h.means), vec![k, 3]),
@@ -59,8 +96,8 @@ pub fn save_model(
         ("scale_min", model.bounds.min.to_string()),
         ("scale_max", model.bounds.max.to_string()),
         (
-            "channels",
-            serde_json::to_string(labels).expect("labels serialise"),
+            "info",
+            serde_json::to_string(info).expect("model info serialises"),
         ),
     ]
     .into_iter()
@@ -74,7 +111,7 @@ pub fn save_model(
 pub struct LoadedModel {
     pub model: GaussianModel,
     pub world: World,
-    pub channels: Vec<String>,
+    pub info: ModelInfo,
 }
 
 /// Read a safetensors model; errors name the file and the tensor or metadata key.
@@ -101,8 +138,8 @@ pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
             .parse::<f64>()
             .map_err(|e| Error::field(path, format!("metadata.{k}"), e.to_string()))
     };
-    let channels: Vec<String> = serde_json::from_str(key("channels")?)
-        .map_err(|e| Error::field(path, "metadata.channels", e.to_string()))?;
+    let info: ModelInfo = serde_json::from_str(key("info")?)
+        .map_err(|e| Error::field(path, "metadata.info", e.to_string()))?;
     let tensor = |name: &str, cols: usize| -> Result<Vec<f32>> {
         let t = st
             .tensor(name)
@@ -123,7 +160,7 @@ pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect())
     };
-    let m = channels.len();
+    let m = info.channels.len();
     let host = HostGaussians {
         channels: m,
         means: tensor("means", 3)?,
@@ -144,7 +181,7 @@ pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
     Ok(LoadedModel {
         model: GaussianModel::new(&host, bounds, device),
         world,
-        channels,
+        info,
     })
 }
 
@@ -152,10 +189,15 @@ pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
 pub fn write_ply(
     path: &Path,
     model: &GaussianModel,
+    raw: Option<Vec<f32>>,
     world: &World,
     labels: &[String],
 ) -> Result<()> {
-    let h = model.to_host();
+    let mut h = model.to_host();
+    if let Some(r) = raw {
+        h.channels = labels.len();
+        h.densities = r;
+    }
     let k = h.len();
     let m = h.channels;
     let mut header = format!(

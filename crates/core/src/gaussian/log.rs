@@ -18,6 +18,8 @@ pub struct LossTerms {
     pub l1: f64,
     pub dssim: f64,
     pub tv: f64,
+    /// Stage 2's curve smoothness L_curve (0 elsewhere).
+    pub curve: f64,
 }
 
 /// One line of `log.jsonl`.

@@ -19,6 +19,7 @@ pub mod io;
 pub mod log;
 pub mod loss;
 pub mod model;
+pub mod query;
 pub mod run;
 pub mod trainer;
 pub mod world;

@@ -9,11 +9,13 @@
 use super::config::{GaussianConfig, GaussianMethod, StructuralSource};
 use super::host::{inverse_softplus, softplus};
 use super::init::{density_scale, from_fdk};
-use super::io::{save_model, write_ply};
+use super::io::{ModelInfo, save_model, write_ply};
 use super::log::RunLog;
 use super::model::{GaussianModel, Learnable};
+use super::query::{Holdout, score_holdout};
 use super::trainer::{
-    Evaluator, Stage, StageReport, Supervision, View, target_tensor, train, volumes,
+    CurveFit, Evaluator, Stage, StageReport, Supervision, View, target_tensor, train, volumes,
+    volumes_with,
 };
 use super::world::World;
 use crate::classic::recon::{
@@ -24,9 +26,11 @@ use crate::classic::{Window, fdk};
 use crate::geometry::Geometry;
 use crate::scene::Scene;
 use crate::{Error, Result};
+use burn::optim::AdamConfig;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use indicatif::{ProgressBar, ProgressStyle};
 use ndarray::{Array3, ArrayView3, Axis, s};
+use prism_gscnet::SpectralGrid;
 use serde::Serialize;
 use std::fs;
 use std::path::Path;
@@ -54,58 +58,175 @@ pub fn run(
     config.validate()?;
     scene.validate()?;
     let unseen = warn_fov(scene)?;
-    let views = channel_training_views(scene)?;
+    let held = config.holdout_indices(scene)?;
+    let observed = scene_without(scene, &held);
+    let views = channel_training_views(&observed)?;
     fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     write_resolved(out_dir, config)?;
     let mut log = RunLog::create(out_dir)?;
     let bar = progress_bar();
     let mut stages = Vec::new();
-    let vols = match config.method {
-        GaussianMethod::R2gs => r2gs(
-            config,
-            scene,
-            &views,
-            out_dir,
-            device,
-            &mut log,
-            &bar,
-            &mut stages,
-        )?,
-        GaussianMethod::Stage1 => stage1(
-            config,
-            scene,
-            &views,
-            out_dir,
-            device,
-            &mut log,
-            &bar,
-            &mut stages,
-        )?,
+    let mut ctx = Ctx {
+        config,
+        scene: &observed,
+        full: scene,
+        views: &views,
+        out_dir,
+        device,
+        log: &mut log,
+        bar: &bar,
+        stages: &mut stages,
+    };
+    let (observed_vols, predicted) = match config.method {
+        GaussianMethod::R2gs => (r2gs(&mut ctx)?, None),
+        GaussianMethod::Stage1 | GaussianMethod::FourDsg => spectral(&mut ctx, &held)?,
     };
     bar.finish_and_clear();
-    let wall_s = log.wall_s();
+    let train_s = log.train_s();
     let summary = TrainSummary {
         method: config.method.name(),
         scene: &scene.name,
-        wall_s,
-        train_s: log.train_s(),
+        wall_s: log.wall_s(),
+        train_s,
         stages: &stages,
     };
     let path = out_dir.join(TRAIN_FILE);
     let json = serde_json::to_string_pretty(&summary)
         .map_err(|e| Error::field(&path, ".", e.to_string()))?;
     fs::write(&path, json + "\n").map_err(|e| Error::io(&path, e))?;
+    // Every channel of the scene: observed ones fitted, held-out ones predicted.
+    let mut vols = Vec::new();
+    let mut next_observed = observed_vols.into_iter();
+    let mut next_held = predicted.into_iter().flatten();
     for (c, ch) in scene.channels.iter().enumerate() {
-        write_volume(out_dir, &ch.label, &vols[c])?;
+        let v = if held.contains(&c) {
+            next_held.next()
+        } else {
+            next_observed.next()
+        }
+        .expect("one volume per channel");
+        write_volume(out_dir, &ch.label, &v)?;
+        vols.push(v);
     }
-    write_metrics(
-        scene,
-        &vols,
-        config.method.name(),
-        log.train_s(),
-        unseen,
-        out_dir,
-    )
+    if held.is_empty() {
+        write_metrics(scene, &vols, config.method.name(), train_s, unseen, out_dir)
+    } else {
+        // Held-out channels have no training views; score them on their own (holdout.json)
+        // and the observed ones in metrics.json.
+        let observed_vols: Vec<_> = (0..scene.n_channels())
+            .filter(|c| !held.contains(c))
+            .map(|c| vols[c].clone())
+            .collect();
+        write_metrics(
+            &observed,
+            &observed_vols,
+            config.method.name(),
+            train_s,
+            unseen,
+            out_dir,
+        )
+    }
+}
+
+/// Everything a method runner needs.
+struct Ctx<'a> {
+    config: &'a GaussianConfig,
+    /// The scene without held-out channels (what training sees).
+    scene: &'a Scene,
+    /// The full scene (held-out channels included, for scoring predictions).
+    full: &'a Scene,
+    views: &'a [Vec<usize>],
+    out_dir: &'a Path,
+    device: &'a Device,
+    log: &'a mut RunLog,
+    bar: &'a ProgressBar,
+    stages: &'a mut Vec<StageReport>,
+}
+
+impl Ctx<'_> {
+    fn train(
+        &mut self,
+        model: &mut GaussianModel,
+        sup: &Supervision,
+        eval: Option<&Evaluator>,
+        stage: &Stage,
+        curve: Option<&mut CurveFit>,
+    ) -> Result<()> {
+        let r = train(model, sup, eval, stage, curve, self.log, self.bar)?;
+        self.stages.push(r);
+        Ok(())
+    }
+
+    fn info(&self, channels: &[usize]) -> ModelInfo {
+        let coords: Vec<f64> = self
+            .full
+            .channels
+            .iter()
+            .map(|c| c.coordinate.value())
+            .collect();
+        let lo = coords.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = coords.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        ModelInfo {
+            channels: channels
+                .iter()
+                .map(|&c| self.scene.channels[c].label.clone())
+                .collect(),
+            tau: channels
+                .iter()
+                .map(|&c| self.scene.channels[c].tau)
+                .collect(),
+            coordinates: channels
+                .iter()
+                .map(|&c| self.scene.channels[c].coordinate.value())
+                .collect(),
+            unit: self.scene.channels[channels[0]]
+                .coordinate
+                .unit()
+                .to_string(),
+            coordinate_range: [lo, hi],
+            geometry: self.scene.geometry.clone(),
+        }
+    }
+}
+
+/// A geometry stage with the config's settings.
+fn base_stage<'s>(
+    c: &'s GaussianConfig,
+    scene: &'s Scene,
+    name: &'s str,
+    channel: &'s str,
+    world: &'s World,
+) -> Stage<'s> {
+    Stage {
+        name,
+        channel,
+        iterations: c.iterations,
+        learn: Learnable::ALL,
+        lr: &c.lr,
+        loss: &c.loss,
+        densify: c.densify.as_ref(),
+        eval_every: c.eval_every,
+        grid: &scene.geometry.volume,
+        world,
+        seed: c.seed,
+    }
+}
+
+/// `scene` without the listed channels (τ kept as in the full scene).
+fn scene_without(scene: &Scene, held: &[usize]) -> Scene {
+    if held.is_empty() {
+        return scene.clone();
+    }
+    let keep: Vec<usize> = (0..scene.n_channels())
+        .filter(|c| !held.contains(c))
+        .collect();
+    Scene {
+        channels: keep.iter().map(|&c| scene.channels[c].clone()).collect(),
+        projections: scene.projections.select(Axis(0), &keep),
+        availability: scene.availability.select(Axis(1), &keep),
+        references: scene.references.as_ref().map(|r| r.select(Axis(0), &keep)),
+        ..scene.clone()
+    }
 }
 
 fn progress_bar() -> ProgressBar {
@@ -175,22 +296,14 @@ fn image(p: ArrayView3<f32>, v: usize) -> Vec<f32> {
     p.index_axis(Axis(0), v).iter().copied().collect()
 }
 
-#[allow(clippy::too_many_arguments)]
-fn r2gs(
-    config: &GaussianConfig,
-    scene: &Scene,
-    views: &[Vec<usize>],
-    out_dir: &Path,
-    device: &Device,
-    log: &mut RunLog,
-    bar: &ProgressBar,
-    stages: &mut Vec<StageReport>,
-) -> Result<Vec<Array3<f32>>> {
+fn r2gs(ctx: &mut Ctx) -> Result<Vec<Array3<f32>>> {
+    let (config, scene, device) = (ctx.config, ctx.scene, ctx.device);
     let geometry = &scene.geometry;
     let mut out = Vec::new();
     for (c, ch) in scene.channels.iter().enumerate() {
+        let views = &ctx.views[c];
         let proj = scene.channel_projections(c);
-        let init_fdk = fdk_of(geometry, proj, &views[c])?;
+        let init_fdk = fdk_of(geometry, proj, views)?;
         let world = World::new(geometry, density_scale(init_fdk.view())?)?;
         let bounds = config.bounds();
         let host = from_fdk(
@@ -204,13 +317,13 @@ fn r2gs(
         )
         .map_err(|e| e.under(&format!("channels[{c}]")))?;
         let mut model = GaussianModel::new(&host, bounds, device);
-        let images = views[c].iter().map(|&v| image(proj, v)).collect();
+        let images = views.iter().map(|&v| image(proj, v)).collect();
         let sup = supervision(
             geometry,
             &world,
-            &views[c],
+            views,
             images,
-            vec![None; views[c].len()],
+            vec![None; views.len()],
             1,
             device,
         );
@@ -219,32 +332,23 @@ fn r2gs(
             world,
             references: vec![r.index_axis(Axis(0), c).to_owned()],
         });
-        let stage = Stage {
-            name: "r2gs",
-            channel: &ch.label,
-            iterations: config.iterations,
-            learn: Learnable::ALL,
-            lr: &config.lr,
-            loss: &config.loss,
-            densify: config.densify.as_ref(),
-            eval_every: config.eval_every,
-            grid: &geometry.volume,
-            world: &world,
-            seed: config.seed,
-        };
-        stages.push(train(&mut model, &sup, eval.as_ref(), &stage, log, bar)?);
+        let stage = base_stage(config, scene, "r2gs", &ch.label, &world);
+        ctx.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
         let stem = format!("gaussians-{}", file_stem(&ch.label));
+        let info = ctx.info(&[c]);
         save_model(
-            &out_dir.join(format!("{stem}.safetensors")),
+            &ctx.out_dir.join(format!("{stem}.safetensors")),
             &model,
+            None,
             &world,
-            std::slice::from_ref(&ch.label),
+            &info,
         )?;
         write_ply(
-            &out_dir.join(format!("{stem}.ply")),
+            &ctx.out_dir.join(format!("{stem}.ply")),
             &model,
+            None,
             &world,
-            std::slice::from_ref(&ch.label),
+            &info.channels,
         )?;
         let v = volumes(&model, &geometry.volume, &world)?;
         out.push(v.index_axis(Axis(0), 0).to_owned());
@@ -296,22 +400,16 @@ fn structural(config: &GaussianConfig, scene: &Scene) -> Result<(Vec<usize>, Vec
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn stage1(
-    config: &GaussianConfig,
-    scene: &Scene,
-    views: &[Vec<usize>],
-    out_dir: &Path,
-    device: &Device,
-    log: &mut RunLog,
-    bar: &ProgressBar,
-    stages: &mut Vec<StageReport>,
-) -> Result<Vec<Array3<f32>>> {
+/// 4D-SG: the shared geometry from the structural projection, then per-channel densities —
+/// directly (`4dsg-stage1`) or through the curve model (`4dsg`, stage 2). Returns the observed
+/// channels' volumes and, for `held` channels, the predicted ones.
+fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Vec<Array3<f32>>, Option<Vec<Array3<f32>>>)> {
+    let (config, scene, device) = (ctx.config, ctx.scene, ctx.device);
     let geometry = &scene.geometry;
     let m = scene.n_channels();
-    // Geometry stage on the structural projection.
+    // Stage 1: geometry (and common density) on the structural projection.
     let (sviews, simages) = structural(config, scene)?;
-    let mut stack = ndarray::Array3::<f32>::zeros((
+    let mut stack = Array3::<f32>::zeros((
         geometry.views(),
         geometry.detector.rows,
         geometry.detector.cols,
@@ -350,33 +448,10 @@ fn stage1(
         world,
         references: vec![r.mean_axis(Axis(0)).expect("at least one channel")],
     });
-    let stage = Stage {
-        name: "geometry",
-        channel: "structural",
-        iterations: config.iterations,
-        learn: Learnable::ALL,
-        lr: &config.lr,
-        loss: &config.loss,
-        densify: config.densify.as_ref(),
-        eval_every: config.eval_every,
-        grid: &geometry.volume,
-        world: &world,
-        seed: config.seed,
-    };
-    stages.push(train(&mut model, &sup, eval.as_ref(), &stage, log, bar)?);
+    let stage = base_stage(config, scene, "geometry", "structural", &world);
+    ctx.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
 
-    // Per-channel densities on the fixed geometry, initialised from the common density scaled by
-    // each channel's mean line integral relative to the structural one.
-    let ratios = channel_ratios(scene, &sviews);
-    let common: Vec<f32> = model.to_host().densities;
-    let raw: Vec<f32> = common
-        .iter()
-        .flat_map(|&u| {
-            let a = softplus(u as f64);
-            ratios.iter().map(move |r| inverse_softplus(a * r) as f32)
-        })
-        .collect();
-    model.set_densities(super::init::tensor2(raw, m, device));
+    // Stage 2 supervision: every available channel at every training view.
     let all_views: Vec<usize> = scene
         .train_views()
         .iter()
@@ -394,7 +469,6 @@ fn stage1(
         images.push(img);
         columns.push((avail.len() < m).then_some(avail));
     }
-    debug_assert!(views.iter().all(|v| !v.is_empty()));
     let sup = supervision(geometry, &world, &all_views, images, columns, m, device);
     let eval = scene.references.as_ref().map(|r| Evaluator {
         grid: geometry.volume.clone(),
@@ -403,32 +477,96 @@ fn stage1(
             .map(|c| r.index_axis(Axis(0), c).to_owned())
             .collect(),
     });
-    let stage = Stage {
-        name: "densities",
-        channel: "all",
-        iterations: config.density_iterations,
-        learn: Learnable::DENSITY,
-        lr: &config.lr,
-        loss: &config.loss,
-        densify: None,
-        eval_every: config.eval_every,
-        grid: &geometry.volume,
-        world: &world,
-        seed: config.seed.wrapping_add(1),
+    let info = ctx.info(&(0..m).collect::<Vec<_>>());
+    let raw = match config.method {
+        GaussianMethod::FourDsg if m >= 2 => {
+            let s2 = &config.stage2;
+            let grid = SpectralGrid::new(info.tau.iter().map(|&t| t as f32).collect())
+                .map_err(|e| Error::invalid("channels", e.to_string()))?;
+            let ad = device.clone().autodiff();
+            let net = s2
+                .curve_model
+                .init(&grid, &ad, config.seed)
+                .map_err(|e| Error::invalid("stage2.curve_model", e.to_string()))?;
+            let mut fit = CurveFit {
+                net,
+                optim: AdamConfig::new().init(),
+                tau: grid.to_tensor(&ad),
+                lambda_curve: s2.lambda_curve,
+                lr: s2.lr_network,
+            };
+            let stage = Stage {
+                iterations: s2.iterations,
+                learn: s2.freeze.learnable(),
+                densify: None,
+                seed: config.seed.wrapping_add(1),
+                ..base_stage(config, scene, "gscnet", "all", &world)
+            };
+            ctx.train(&mut model, &sup, eval.as_ref(), &stage, Some(&mut fit))?;
+            fit.raw_densities(&model)?
+        }
+        _ => {
+            if config.method == GaussianMethod::FourDsg {
+                eprintln!(
+                    "note: one observed channel: no spectral axis, stage 2 is skipped and the \
+                     stage-1 densities are the result"
+                );
+            }
+            // 4dsg-stage1: per-channel densities fitted directly on the fixed geometry,
+            // initialised from the common density scaled by each channel's mean line integral
+            // relative to the channels' average.
+            let ratios = channel_ratios(scene, &sviews);
+            let common: Vec<f32> = model.to_host().densities;
+            let raw: Vec<f32> = common
+                .iter()
+                .flat_map(|&u| {
+                    let a = softplus(u as f64);
+                    ratios.iter().map(move |r| inverse_softplus(a * r) as f32)
+                })
+                .collect();
+            model.set_densities(super::init::tensor2(raw, m, device));
+            let stage = Stage {
+                iterations: config.density_iterations,
+                learn: Learnable::DENSITY,
+                densify: None,
+                seed: config.seed.wrapping_add(1),
+                ..base_stage(config, scene, "densities", "all", &world)
+            };
+            ctx.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
+            model.densities.value.clone()
+        }
     };
-    stages.push(train(&mut model, &sup, eval.as_ref(), &stage, log, bar)?);
-    let labels: Vec<String> = scene.channels.iter().map(|c| c.label.clone()).collect();
+    let raw_host: Vec<f32> = super::init::column_values(&raw);
     save_model(
-        &out_dir.join("gaussians.safetensors"),
+        &ctx.out_dir.join("gaussians.safetensors"),
         &model,
+        Some(raw_host.clone()),
         &world,
-        &labels,
+        &info,
     )?;
-    write_ply(&out_dir.join("gaussians.ply"), &model, &world, &labels)?;
-    let v = volumes(&model, &geometry.volume, &world)?;
-    Ok((0..m)
+    write_ply(
+        &ctx.out_dir.join("gaussians.ply"),
+        &model,
+        Some(raw_host),
+        &world,
+        &info.channels,
+    )?;
+    let v = volumes_with(&model, raw.clone(), &geometry.volume, &world)?;
+    let observed = (0..m)
         .map(|c| v.index_axis(Axis(0), c).to_owned())
-        .collect())
+        .collect();
+    let predicted = if held.is_empty() {
+        None
+    } else {
+        let hold = Holdout {
+            model: &model,
+            raw: &raw,
+            world: &world,
+            info: &info,
+        };
+        Some(score_holdout(&hold, ctx.full, held, ctx.out_dir)?)
+    };
+    Ok((observed, predicted))
 }
 
 /// Mean line integral of each channel over the structural views, divided by the structural mean.

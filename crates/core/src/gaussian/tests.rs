@@ -5,7 +5,7 @@ use super::config::{GaussianConfig, GaussianMethod};
 use super::densify::{DensifyConfig, densify_and_prune};
 use super::host::{HostGaussians, ScaleBounds, inverse_softplus};
 use super::init::{InitConfig, from_fdk};
-use super::io::{load_model, save_model, write_ply};
+use super::io::{ModelInfo, load_model, save_model, write_ply};
 use super::model::GaussianModel;
 use super::world::World;
 use super::*;
@@ -61,7 +61,7 @@ fn both_methods_train_densify_score_and_repeat_exactly() {
         // and at 20 of stage 1's density stage.
         let records = match method {
             GaussianMethod::R2gs => 4,
-            GaussianMethod::Stage1 => 3,
+            GaussianMethod::Stage1 | GaussianMethod::FourDsg => 3,
         };
         assert_eq!(la.len(), records, "{la:?}");
         let first = &la[0];
@@ -167,13 +167,21 @@ fn initial_scales_are_the_lattice_spacing_and_models_round_trip() {
     let model = GaussianModel::new(&host, bounds, &dev);
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("g.safetensors");
-    save_model(&path, &model, &world, &["a".into()]).unwrap();
+    let info = ModelInfo {
+        channels: vec!["a".into()],
+        tau: vec![0.0],
+        coordinates: vec![70.0],
+        unit: "keV".into(),
+        coordinate_range: [70.0, 70.0],
+        geometry: g.clone(),
+    };
+    save_model(&path, &model, None, &world, &info).unwrap();
     let back = load_model(&path, &dev).unwrap();
     assert_eq!(back.model.to_host(), host);
     assert_eq!(back.world, world);
-    assert_eq!(back.channels, vec!["a".to_string()]);
+    assert_eq!(back.info, info);
     let ply = dir.path().join("g.ply");
-    write_ply(&ply, &model, &world, &["a".into()]).unwrap();
+    write_ply(&ply, &model, None, &world, &info.channels).unwrap();
     let bytes = std::fs::read(&ply).unwrap();
     let text = String::from_utf8_lossy(&bytes[..400]);
     assert!(
@@ -186,4 +194,124 @@ fn initial_scales_are_the_lattice_spacing_and_models_round_trip() {
     std::fs::write(&path, b"nonsense").unwrap();
     let e = load_model(&path, &dev).err().unwrap().to_string();
     assert!(e.contains("g.safetensors"), "{e}");
+}
+
+#[test]
+fn four_dsg_trains_the_curve_model_and_predicts_a_held_out_channel() {
+    // Three channels (40, 55, 70 keV analogues) so the middle one can be held out.
+    let scene = three_channel_scene();
+    let dev = test_device();
+    for kind in [
+        prism_gscnet::CurveModelKind::Gscnet,
+        prism_gscnet::CurveModelKind::Mlp,
+    ] {
+        let mut cfg = tiny(GaussianMethod::FourDsg);
+        cfg.iterations = 20;
+        cfg.densify = None;
+        cfg.stage2.iterations = 20;
+        cfg.stage2.curve_model.kind = kind;
+        cfg.stage2.curve_model.width = 8;
+        cfg.stage2.curve_model.depth = 1;
+        cfg.holdout_channels = vec![scene.channels[1].label.clone()];
+        let dir = tempfile::tempdir().unwrap();
+        let report = run::run(&cfg, &scene, dir.path(), &dev).unwrap().unwrap();
+        assert_eq!(
+            report.channels.len(),
+            2,
+            "metrics.json holds the observed channels"
+        );
+        let log = losses(dir.path());
+        let s2: Vec<_> = log.iter().filter(|r| r.0 == "gscnet").collect();
+        assert_eq!(s2.len(), 1, "{log:?}");
+        let holdout: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join(query::HOLDOUT_FILE)).unwrap(),
+        )
+        .unwrap();
+        let h = &holdout[0];
+        assert_eq!(h["label"], scene.channels[1].label.as_str());
+        assert!(h["volume_psnr"].as_f64().unwrap() > 15.0, "{holdout}");
+        assert!(h["proj_psnr"].as_f64().unwrap() > 15.0, "{holdout}");
+        // Queries: at an observed grid point the query reproduces the fitted channel's volume;
+        // outside the grid it is refused unless extrapolation is asked for.
+        let q = query::Query::open(dir.path(), &dev).unwrap();
+        let tau0 = q.loaded.info.tau[0];
+        let v = q.volume(query::QueryAt::Tau(tau0), false).unwrap();
+        let fitted: ndarray::Array3<f32> =
+            ndarray_npy::read_npy(dir.path().join(format!("{}.npy", scene.channels[0].label)))
+                .unwrap();
+        let diff = (&v - &fitted).mapv(f32::abs).fold(0.0f32, |a, &b| a.max(b));
+        let peak = fitted.fold(0.0f32, |a, &b| a.max(b));
+        assert!(diff <= 1e-5 * peak, "{diff} vs peak {peak}");
+        let e = q
+            .volume(query::QueryAt::Tau(1.5), false)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(e.contains("tau") && e.contains("extrapolate"), "{e}");
+        assert!(q.volume(query::QueryAt::Tau(1.5), true).is_ok());
+        let p = q
+            .projections(query::QueryAt::Coordinate(55.0), false)
+            .unwrap();
+        assert_eq!(p.dim(), (scene.n_views(), 40, 40));
+        assert!(p.iter().all(|x| x.is_finite()));
+    }
+}
+
+#[test]
+fn bad_holdouts_and_single_channel_scenes_are_handled() {
+    let scene = three_channel_scene();
+    let mut cfg = tiny(GaussianMethod::FourDsg);
+    cfg.holdout_channels = vec![scene.channels[0].label.clone()];
+    let e = cfg.holdout_indices(&scene).unwrap_err().to_string();
+    assert!(
+        e.contains("holdout_channels[0]") && e.contains("extrapolation"),
+        "{e}"
+    );
+    cfg.holdout_channels = vec!["nope".into()];
+    let e = cfg.holdout_indices(&scene).unwrap_err().to_string();
+    assert!(e.contains("nope"), "{e}");
+    let mut r2 = tiny(GaussianMethod::R2gs);
+    r2.holdout_channels = vec![scene.channels[1].label.clone()];
+    assert!(r2.holdout_indices(&scene).is_err());
+}
+
+/// The tiny scene with a third channel at 55 keV between 40 and 70 keV, every view complete.
+fn three_channel_scene() -> crate::scene::Scene {
+    use crate::physics::ChannelSpec;
+    use crate::scene::{Channel, SpectralCoordinate, normalise_tau};
+    let mut s = scene();
+    s.availability.fill(true);
+    let ph = crate::phantom::SpectralPhantom::builtin(22.0).unwrap();
+    let paths = ph.material_paths(&s.geometry).unwrap();
+    let fractions = ph.fractions(&s.geometry.volume, 3).unwrap();
+    let kevs = [40.0, 55.0, 70.0];
+    let proj: Vec<_> = kevs
+        .iter()
+        .map(|&kev| ChannelSpec::Mono { kev }.project(&paths).unwrap())
+        .collect();
+    let refs: Vec<_> = kevs
+        .iter()
+        .map(|&kev| ChannelSpec::Mono { kev }.volume(&fractions).unwrap())
+        .collect();
+    let views = s.n_views();
+    s.projections = ndarray::stack(
+        ndarray::Axis(0),
+        &proj.iter().map(|p| p.view()).collect::<Vec<_>>(),
+    )
+    .unwrap();
+    s.references = Some(
+        ndarray::stack(
+            ndarray::Axis(0),
+            &refs.iter().map(|p| p.view()).collect::<Vec<_>>(),
+        )
+        .unwrap(),
+    );
+    s.availability = ndarray::Array2::from_elem((views, 3), true);
+    s.channels = kevs
+        .iter()
+        .map(|&kev| Channel::new(format!("{kev}keV"), SpectralCoordinate::Energy { kev }))
+        .collect();
+    normalise_tau(&mut s.channels).unwrap();
+    s.validate().unwrap();
+    s
 }

@@ -11,17 +11,19 @@ use super::adam::LogLinear;
 use super::densify::{DensifyConfig, DensifyCounts, densify_and_prune};
 use super::log::{LogRecord, LossTerms, RunLog};
 use super::loss::{SsimWindow, l1, total_variation};
-use super::model::{GaussianModel, Learnable};
+use super::model::{GaussianModel, Learnable, softplus};
 use super::world::World;
 use crate::geometry::VolumeGrid;
 use crate::metrics::{SsimParams, psnr, ssim_3d};
 use crate::{Error, Result};
+use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::{Int, Tensor, TensorData};
 use indicatif::ProgressBar;
 use ndarray::{Array3, Array4, Axis};
+use prism_gscnet::{CurveModel, curve_regularizer};
 use prism_render::{
-    Camera, ProjectOptions, VoxelGrid, VoxelizeOptions, project, screen_grad_norm, screen_probe,
-    voxelize,
+    Camera, Gaussians, ProjectOptions, VoxelGrid, VoxelizeOptions, project, screen_grad_norm,
+    screen_probe, voxelize,
 };
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -134,7 +136,15 @@ impl Evaluator {
 
     /// Mean PSNR / SSIM over columns, after dividing both volumes by the reference's maximum.
     pub fn score(&self, model: &GaussianModel) -> Result<(f64, f64)> {
-        let vols = self.volumes(model)?;
+        self.score_volumes(self.volumes(model)?)
+    }
+
+    /// [`Evaluator::score`] with the model's densities replaced by raw columns `[K, M]`.
+    pub fn score_raw(&self, model: &GaussianModel, raw: Tensor<2>) -> Result<(f64, f64)> {
+        self.score_volumes(volumes_with(model, raw, &self.grid, &self.world)?)
+    }
+
+    fn score_volumes(&self, vols: Array4<f32>) -> Result<(f64, f64)> {
         let (mut p, mut s) = (0.0, 0.0);
         for (c, truth) in self.references.iter().enumerate() {
             let (a, b) = score_volume(vols.index_axis(Axis(0), c).to_owned(), truth)?;
@@ -166,7 +176,22 @@ pub fn score_volume(pred: Array3<f32>, truth: &Array3<f32>) -> Result<(f64, f64)
 
 /// Voxelize `model` on `grid` (millimetres): `[M][z][y][x]` densities in mm⁻¹.
 pub fn volumes(model: &GaussianModel, grid: &VolumeGrid, world: &World) -> Result<Array4<f32>> {
-    let g = model.activate(None).gaussians;
+    voxelize_gaussians(model.activate(None).gaussians, grid, world)
+}
+
+/// [`volumes`] with the model's densities replaced by raw columns `raw` `[K, M]`.
+pub fn volumes_with(
+    model: &GaussianModel,
+    raw: Tensor<2>,
+    grid: &VolumeGrid,
+    world: &World,
+) -> Result<Array4<f32>> {
+    let mut g = model.activate(None).gaussians;
+    g.densities = softplus(raw);
+    voxelize_gaussians(g, grid, world)
+}
+
+fn voxelize_gaussians(g: Gaussians, grid: &VolumeGrid, world: &World) -> Result<Array4<f32>> {
     let v =
         voxelize(&g, &world.voxel_grid(grid), &VoxelizeOptions::default()).map_err(render_error)?;
     let [m, z, y, x] = v.dims();
@@ -204,6 +229,36 @@ pub struct Stage<'a> {
     pub seed: u64,
 }
 
+/// Stage 2 of 4D-SG: the model's density column is the common raw density u⁽ᶜ⁾ [K, 1] and a
+/// curve model (GSC-Net or the MLP) predicts Δu [K, M] on the observed spectral grid; the rendered
+/// densities are softplus(u⁽ᶜ⁾ + Δu). The network has its own Adam (Burn's module optimiser).
+pub struct CurveFit {
+    /// The curve model, on the autodiff form of the training device.
+    pub net: CurveModel,
+    pub optim: ModuleOptimizer,
+    /// The observed grid τ [M] (autodiff device).
+    pub tau: Tensor<1>,
+    /// Weight of the curve smoothness term L_curve.
+    pub lambda_curve: f64,
+    /// Learning rate of the network.
+    pub lr: LogLinear,
+}
+
+impl CurveFit {
+    /// Raw per-channel densities u⁽ᶜ⁾ + Δu `[K, M]` of `model` (no gradient), for saving and
+    /// for queries.
+    pub fn raw_densities(&self, model: &GaussianModel) -> Result<Tensor<2>> {
+        let u = model.densities.value.clone();
+        let k = u.dims()[0];
+        let du = self
+            .net
+            .forward(u.clone().autodiff().reshape([k]), self.tau.clone())
+            .map_err(|e| Error::invalid("curve_model", e.to_string()))?
+            .inner();
+        Ok(u + du)
+    }
+}
+
 /// Seconds spent per part of an iteration, summed over a stage.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Timing {
@@ -236,6 +291,7 @@ pub fn train(
     sup: &Supervision,
     eval: Option<&Evaluator>,
     stage: &Stage,
+    mut curve: Option<&mut CurveFit>,
     log: &mut RunLog,
     bar: &ProgressBar,
 ) -> Result<StageReport> {
@@ -247,12 +303,15 @@ pub fn train(
     if sup.views.is_empty() {
         return Err(Error::invalid("views", "no training view to fit"));
     }
-    if model.channels() != sup.columns {
+    let columns = match &curve {
+        Some(c) => c.net.channels(),
+        None => model.channels(),
+    };
+    if columns != sup.columns || (curve.is_some() && model.channels() != 1) {
         return Err(Error::invalid(
             "densities",
             format!(
-                "the model has {} density columns, the stage supervises {}",
-                model.channels(),
+                "the model renders {columns} density columns, the stage supervises {}",
                 sup.columns
             ),
         ));
@@ -287,7 +346,20 @@ pub fn train(
         let view = &sup.views[stack.pop().expect("refilled")];
 
         let t0 = Instant::now();
-        let act = model.activate(Some(stage.learn));
+        let mut act = model.activate(Some(stage.learn));
+        let delta_u = match &curve {
+            Some(c) => {
+                let u = act.leaves[3].clone();
+                let k = u.dims()[0];
+                let du = c
+                    .net
+                    .forward(u.clone().reshape([k]), c.tau.clone())
+                    .map_err(|e| Error::invalid("curve_model", e.to_string()))?;
+                act.gaussians.densities = softplus(u + du.clone());
+                Some(du)
+            }
+            None => None,
+        };
         let probe = stats.as_ref().map(|_| screen_probe(&act.gaussians, 1));
         let mut img = project(
             &act.gaussians,
@@ -318,6 +390,15 @@ pub fn train(
         } else {
             None
         };
+        let l_curve = match (&curve, delta_u) {
+            (Some(c), Some(du)) if c.lambda_curve > 0.0 => {
+                let l = curve_regularizer(du)
+                    .map_err(|e| Error::invalid("curve_model", e.to_string()))?;
+                total = total.clone() + l.clone() * c.lambda_curve;
+                Some(l)
+            }
+            _ => None,
+        };
         let t2 = Instant::now();
 
         let terms = LossTerms {
@@ -325,6 +406,7 @@ pub fn train(
             l1: scalar(&l_1),
             dssim: dssim.as_ref().map(scalar).unwrap_or(0.0),
             tv: tv.as_ref().map(scalar).unwrap_or(0.0),
+            curve: l_curve.as_ref().map(scalar).unwrap_or(0.0),
         };
         if !terms.total.is_finite() {
             return Err(Error::invalid(
@@ -352,12 +434,17 @@ pub fn train(
                 param.step(g, sched.at(it - 1, n));
             }
         }
+        let probe_grad = probe.as_ref().and_then(|p| p.grad(&grads));
+        if let Some(c) = curve.as_deref_mut() {
+            let gp = GradientsParams::from_grads(grads, &c.net);
+            c.net = c.optim.step(c.lr.at(it - 1, n), c.net.clone(), gp);
+        }
         let t4 = Instant::now();
 
-        if let (Some(cfg), Some(st), Some(p)) = (densify, stats.as_mut(), probe.as_ref())
+        if let (Some(cfg), Some(st)) = (densify, stats.as_mut())
             && it < cfg.until
         {
-            if let Some(g) = p.grad(&grads) {
+            if let Some(g) = probe_grad {
                 st.add(screen_grad_norm(&g) * ndc);
             }
             if cfg.due(it) {
@@ -390,13 +477,17 @@ pub fn train(
         acc.l1 += terms.l1;
         acc.dssim += terms.dssim;
         acc.tv += terms.tv;
+        acc.curve += terms.curve;
         *k += 1;
         last = terms;
         bar.set_position(it as u64);
         let due = (stage.eval_every > 0 && it % stage.eval_every == 0) || it == stage.iterations;
         if due {
             let score = match eval {
-                Some(e) => Some(log.evaluating(|| e.score(model))?),
+                Some(e) => Some(log.evaluating(|| match curve.as_deref() {
+                    Some(c) => e.score_raw(model, c.raw_densities(model)?),
+                    None => e.score(model),
+                })?),
                 None => None,
             };
             if score.is_some() {
@@ -415,6 +506,7 @@ pub fn train(
                     l1: acc.l1 / kf,
                     dssim: acc.dssim / kf,
                     tv: acc.tv / kf,
+                    curve: acc.curve / kf,
                 },
                 n_gaussians: model.len(),
                 psnr: score.map(|s| s.0),
