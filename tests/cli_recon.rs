@@ -99,3 +99,73 @@ fn recon_bad_input_names_the_field() {
         assert!(!run.join("metrics.json").exists());
     }
 }
+
+const SPECTRAL_SCENE: &str = r#"
+name: tiny-spectral
+geometry:
+  beam: cone
+  dso: 1000.0
+  dsd: 1500.0
+  detector: { rows: 32, cols: 32, size_mm: [512.0, 512.0] }
+  volume: { n: 24, size_mm: 256.0 }
+  views: 16
+  test_views: 2
+object:
+  phantom: { radius_mm: 110.0 }
+channels:
+  - { kind: mono, kev: 50 }
+  - { kind: mono, kev: 70 }
+  - { kind: mono, kev: 90 }
+"#;
+
+#[test]
+fn four_dsg_with_a_held_out_channel_then_queries() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("scene.yaml");
+    std::fs::write(&cfg, SPECTRAL_SCENE).unwrap();
+    let scene = dir.path().join("scene");
+    assert!(prism(&["simulate", path(&cfg), "-o", path(&scene)]).0);
+    let rc = dir.path().join("4dsg.yaml");
+    std::fs::write(
+        &rc,
+        "method: 4dsg\niterations: 15\neval_every: 0\ninit: {n_points: 300, threshold: 0.05, \
+         density_rescale: 0.15, neighbours: 3}\ndensify: null\nholdout_channels: [70keV]\n\
+         stage2: {iterations: 10, curve_model: {width: 8, depth: 1}}\n",
+    )
+    .unwrap();
+    let run = dir.path().join("run");
+    let (ok, t) = prism(&["recon", path(&rc), "-s", path(&scene), "-o", path(&run)]);
+    assert!(ok, "{t}");
+    for f in [
+        "50keV.npy",
+        "70keV.npy",
+        "90keV.npy",
+        "metrics.json",
+        "holdout.json",
+        "log.jsonl",
+        "train.json",
+        "gaussians.safetensors",
+        "gaussians.ply",
+    ] {
+        assert!(run.join(f).is_file(), "{f} missing");
+    }
+    let h: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("holdout.json")).unwrap()).unwrap();
+    assert_eq!(h[0]["label"], "70keV");
+    assert!(h[0]["proj_psnr"].as_f64().unwrap().is_finite());
+    let out = dir.path().join("q.npy");
+    let (ok, t) = prism(&["query", path(&run), "--coordinate", "60", "-o", path(&out)]);
+    assert!(ok && out.is_file(), "{t}");
+    let (ok, t) = prism(&[
+        "query",
+        path(&run),
+        "--tau",
+        "0.5",
+        "--projections",
+        "-o",
+        path(&out),
+    ]);
+    assert!(ok, "{t}");
+    let (ok, t) = prism(&["query", path(&run), "--coordinate", "120", "-o", path(&out)]);
+    assert!(!ok && t.contains("extrapolate"), "{t}");
+}

@@ -5,6 +5,7 @@
 
 mod bench;
 mod info;
+mod query;
 mod recon;
 mod simulate;
 
@@ -24,8 +25,10 @@ enum Command {
     Simulate(simulate::Args),
     /// Print a scene's geometry, channels, availability and value ranges.
     Info(info::Args),
-    /// Reconstruct every channel with a classic method (fdk | sart | cgls) into a run directory.
+    /// Reconstruct every channel (fdk | sart | cgls | r2gs | 4dsg-stage1 | 4dsg) into a run directory.
     Recon(recon::ReconArgs),
+    /// Volume or projections of a trained spectral model at any spectral coordinate.
+    Query(query::Args),
     /// Benchmarks that print one JSON object (`prism bench classic`).
     Bench(bench::Args),
 }
@@ -36,6 +39,7 @@ fn main() -> ExitCode {
         Command::Simulate(args) => simulate::run(args),
         Command::Info(args) => info::run(args),
         Command::Recon(args) => recon::run(args),
+        Command::Query(args) => query::run(args),
         Command::Bench(args) => bench::run(args),
     };
     match result {

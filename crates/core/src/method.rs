@@ -12,7 +12,7 @@ use std::path::Path;
 #[derive(Clone, Debug, PartialEq)]
 pub enum MethodConfig {
     Classic(ReconConfig),
-    Gaussian(GaussianConfig),
+    Gaussian(Box<GaussianConfig>),
 }
 
 impl MethodConfig {
@@ -26,7 +26,7 @@ impl MethodConfig {
                 ReconConfig::from_yaml(text, file).map(MethodConfig::Classic)
             }
             Some("r2gs" | "4dsg-stage1" | "4dsg") => {
-                GaussianConfig::from_yaml(text, file).map(MethodConfig::Gaussian)
+                GaussianConfig::from_yaml(text, file).map(|c| MethodConfig::Gaussian(Box::new(c)))
             }
             Some(other) => Err(Error::field(
                 file,

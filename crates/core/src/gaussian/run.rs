@@ -128,6 +128,9 @@ pub fn run(
     }
 }
 
+/// One volume per channel (mm⁻¹, `[z][y][x]`).
+type Volumes = Vec<Array3<f32>>;
+
 /// Everything a method runner needs.
 struct Ctx<'a> {
     config: &'a GaussianConfig,
@@ -403,7 +406,7 @@ fn structural(config: &GaussianConfig, scene: &Scene) -> Result<(Vec<usize>, Vec
 /// 4D-SG: the shared geometry from the structural projection, then per-channel densities —
 /// directly (`4dsg-stage1`) or through the curve model (`4dsg`, stage 2). Returns the observed
 /// channels' volumes and, for `held` channels, the predicted ones.
-fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Vec<Array3<f32>>, Option<Vec<Array3<f32>>>)> {
+fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)> {
     let (config, scene, device) = (ctx.config, ctx.scene, ctx.device);
     let geometry = &scene.geometry;
     let m = scene.n_channels();
