@@ -91,4 +91,18 @@ mod tests {
             .to_string();
         assert!(e.contains("iterations"), "{e}");
     }
+
+    #[test]
+    fn every_shipped_recon_config_parses() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/recon");
+        let mut n = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "yaml") {
+                MethodConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                n += 1;
+            }
+        }
+        assert!(n >= 7, "{n} configs");
+    }
 }
