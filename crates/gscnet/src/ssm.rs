@@ -10,9 +10,10 @@
 //! y_m = C_m · h_m + D ⊙ x_m
 //! ```
 //!
-//! Δ, B and C depend on the token (selectivity). M is small (2–16), so the scan is a loop over m
-//! written with Burn tensor ops and autodiff provides the backward pass (checked against finite
-//! differences in the tests). Memory: the autodiff graph keeps O(K·M·E·N) floats.
+//! Δ, B and C depend on the token (selectivity). The scan is one fused op with a hand-written
+//! reverse-time adjoint ([`crate::cpu::scan`], registered for the CPU backends and Autodiff in
+//! [`crate::ops`]); the tests check it against an f64 host loop and finite differences. Memory:
+//! autodiff keeps only the op's inputs (O(K·M·(E+N)) floats); the backward recomputes the states.
 
 use crate::init::SeedStream;
 use burn::module::{Module, Param};
@@ -22,7 +23,7 @@ use burn::tensor::{Device, Tensor};
 
 use crate::init;
 
-/// Runs the selective scan.
+/// Runs the selective scan (fused CPU op: Flex or NdArray devices, with or without autodiff).
 ///
 /// Shapes: `x` [K, M, E], `delta` (Δ > 0) [K, M, E], `a_log` [E, N], `b` [K, M, N],
 /// `c` [K, M, N], `d` [E] → `y` [K, M, E]. Panics on inconsistent shapes (internal API: the
@@ -46,28 +47,7 @@ pub fn selective_scan(
     assert_eq!(c.dims(), [k, m_len, n], "selective_scan: C shape");
     assert_eq!(d.dims(), [e], "selective_scan: D shape");
 
-    let a = a_log.exp().neg().unsqueeze_dim::<3>(0); // [1, E, N]
-    let d = d.unsqueeze_dim::<2>(0); // [1, E]
-    let mut h: Option<Tensor<3>> = None; // [K, E, N]
-    let mut ys = Vec::with_capacity(m_len);
-    for m in 0..m_len {
-        let x_m = x.clone().narrow(1, m, 1).reshape([k, e]);
-        let dt_m = delta.clone().narrow(1, m, 1).reshape([k, e]);
-        let b_m = b.clone().narrow(1, m, 1).reshape([k, 1, n]);
-        let c_m = c.clone().narrow(1, m, 1).reshape([k, 1, n]);
-        let drive = dt_m.clone().mul(x_m.clone()).unsqueeze_dim::<3>(2).mul(b_m); // B̄ x
-        let h_m = match h {
-            None => drive,
-            Some(prev) => {
-                let a_bar = dt_m.unsqueeze_dim::<3>(2).mul(a.clone()).exp();
-                a_bar.mul(prev).add(drive)
-            }
-        };
-        let y_m = h_m.clone().mul(c_m).sum_dim(2).reshape([k, e]);
-        ys.push(y_m.add(d.clone().mul(x_m)));
-        h = Some(h_m);
-    }
-    Tensor::stack(ys, 1)
+    crate::ops::fused_selective_scan(x, delta, a_log, b, c, d)
 }
 
 /// The selective SSM layer: input-dependent Δ, B, C from the (convolved) tokens, learned A_log
