@@ -99,9 +99,9 @@ impl SelectiveSsm {
 
     /// `x` [K, M, E] → [K, M, E].
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        let delta = softplus(self.dt_proj.forward(x.clone()), 1.0);
-        let b = self.b_proj.forward(x.clone());
-        let c = self.c_proj.forward(x.clone());
+        let delta = softplus(init::apply_rows(&self.dt_proj, x.clone()), 1.0);
+        let b = init::apply_rows(&self.b_proj, x.clone());
+        let c = init::apply_rows(&self.c_proj, x.clone());
         selective_scan(x, delta, self.a_log.val(), b, c, self.d.val())
     }
 }
