@@ -19,12 +19,13 @@ use crate::ops::SpectralOps;
 struct ScanBackward;
 
 impl<B: SpectralOps> Backward<B, 6> for ScanBackward {
-    type State = [FloatTensor<B>; 6];
+    type State = ([FloatTensor<B>; 6], bool);
 
     fn backward(self, ops: Ops<Self::State, 6>, grads: &mut Gradients, _ck: &mut Checkpointer) {
         let grad = grads.consume::<B>(&ops.node);
-        let [x, delta, a_log, b, c, d] = ops.state;
-        let (g0, g1, g2, g3, g4, g5) = B::selective_scan_backward(x, delta, a_log, b, c, d, grad);
+        let ([x, delta, a_log, b, c, d], softplus) = ops.state;
+        let (g0, g1, g2, g3, g4, g5) =
+            B::selective_scan_backward(x, delta, a_log, b, c, d, softplus, grad);
         for (parent, g) in ops.parents.into_iter().zip([g0, g1, g2, g3, g4, g5]) {
             if let Some(node) = parent {
                 grads.register::<B>(node.id, g);
@@ -59,6 +60,7 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         b: FloatTensor<Self>,
         c: FloatTensor<Self>,
         d: FloatTensor<Self>,
+        softplus: bool,
     ) -> FloatTensor<Self> {
         let prep = ScanBackward
             .prepare::<C>([
@@ -82,12 +84,12 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         match prep {
             OpsKind::Tracked(prep) => {
                 let [x, delta, a_log, b, c, d] = inputs.clone();
-                let out = B::selective_scan(x, delta, a_log, b, c, d);
-                prep.finish(inputs, out)
+                let out = B::selective_scan(x, delta, a_log, b, c, d, softplus);
+                prep.finish((inputs, softplus), out)
             }
             OpsKind::UnTracked(prep) => {
                 let [x, delta, a_log, b, c, d] = inputs;
-                prep.finish(B::selective_scan(x, delta, a_log, b, c, d))
+                prep.finish(B::selective_scan(x, delta, a_log, b, c, d, softplus))
             }
         }
     }
@@ -99,6 +101,7 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         b: FloatTensor<Self>,
         c: FloatTensor<Self>,
         d: FloatTensor<Self>,
+        softplus: bool,
         grad: FloatTensor<Self>,
     ) -> (
         FloatTensor<Self>,
@@ -115,6 +118,7 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
             b.into_primitive(),
             c.into_primitive(),
             d.into_primitive(),
+            softplus,
             grad.into_primitive(),
         );
         let lift = <Self as AutodiffBackend>::from_inner;

@@ -14,6 +14,7 @@ use burn::tensor::Tensor;
 #[backend_extension(NdArray: cfg(feature = "ndarray"), Flex: cfg(feature = "flex"), Autodiff)]
 pub trait SpectralOps: Backend {
     /// Selective scan: x, Δ `[K, M, E]`, A_log `[E, N]`, B, C `[K, M, N]`, D `[E]` → `[K, M, E]`.
+    /// With `softplus`, `delta` holds raw steps z and Δ = softplus(z).
     fn selective_scan(
         x: FloatTensor<Self>,
         delta: FloatTensor<Self>,
@@ -21,6 +22,7 @@ pub trait SpectralOps: Backend {
         b: FloatTensor<Self>,
         c: FloatTensor<Self>,
         d: FloatTensor<Self>,
+        softplus: bool,
     ) -> FloatTensor<Self>;
 
     /// Gradients `(x, Δ, A_log, B, C, D)` of `⟨grad, selective_scan(..)⟩`.
@@ -32,6 +34,7 @@ pub trait SpectralOps: Backend {
         b: FloatTensor<Self>,
         c: FloatTensor<Self>,
         d: FloatTensor<Self>,
+        softplus: bool,
         grad: FloatTensor<Self>,
     ) -> (
         FloatTensor<Self>,
@@ -58,7 +61,8 @@ pub trait SpectralOps: Backend {
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 }
 
-/// The fused selective scan (shapes checked by the caller, [`crate::ssm::selective_scan`]).
+/// The fused selective scan (shapes checked by the caller, [`crate::ssm::selective_scan`]); with
+/// `softplus`, `delta` holds raw steps z and Δ = softplus(z).
 pub(crate) fn fused_selective_scan(
     x: Tensor<3>,
     delta: Tensor<3>,
@@ -66,6 +70,7 @@ pub(crate) fn fused_selective_scan(
     b: Tensor<3>,
     c: Tensor<3>,
     d: Tensor<1>,
+    softplus: bool,
 ) -> Tensor<3> {
     Tensor::from_dispatch(Dispatch::selective_scan(
         x.into_dispatch(),
@@ -74,6 +79,7 @@ pub(crate) fn fused_selective_scan(
         b.into_dispatch(),
         c.into_dispatch(),
         d.into_dispatch(),
+        softplus,
     ))
 }
 

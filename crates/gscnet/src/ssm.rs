@@ -18,7 +18,6 @@
 use crate::init::SeedStream;
 use burn::module::{Module, Param};
 use burn::nn::Linear;
-use burn::tensor::activation::softplus;
 use burn::tensor::{Device, Tensor};
 
 use crate::init;
@@ -47,7 +46,7 @@ pub fn selective_scan(
     assert_eq!(c.dims(), [k, m_len, n], "selective_scan: C shape");
     assert_eq!(d.dims(), [e], "selective_scan: D shape");
 
-    crate::ops::fused_selective_scan(x, delta, a_log, b, c, d)
+    crate::ops::fused_selective_scan(x, delta, a_log, b, c, d, false)
 }
 
 /// The selective SSM layer: input-dependent Δ, B, C from the (convolved) tokens, learned A_log
@@ -99,10 +98,17 @@ impl SelectiveSsm {
 
     /// `x` [K, M, E] → [K, M, E].
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        let delta = softplus(init::apply_rows(&self.dt_proj, x.clone()), 1.0);
+        // Raw steps z; the scan applies Δ = softplus(z) itself.
+        let z = init::apply_rows(&self.dt_proj, x.clone());
         let b = init::apply_rows(&self.b_proj, x.clone());
         let c = init::apply_rows(&self.c_proj, x.clone());
-        selective_scan(x, delta, self.a_log.val(), b, c, self.d.val())
+        let [k, m, e] = x.dims();
+        let n = self.a_log.val().dims()[1];
+        assert!(
+            z.dims() == [k, m, e] && b.dims() == [k, m, n] && c.dims() == [k, m, n],
+            "SelectiveSsm: projections do not match the tokens' width {e} and state size {n}"
+        );
+        crate::ops::fused_selective_scan(x, z, self.a_log.val(), b, c, self.d.val(), true)
     }
 }
 
@@ -110,6 +116,7 @@ impl SelectiveSsm {
 mod tests {
     use super::*;
     use burn::tensor::TensorData;
+    use burn::tensor::activation::softplus;
 
     const K: usize = 2;
     const M: usize = 4;
@@ -283,5 +290,56 @@ mod tests {
         }
         let a_log = values(ssm.a_log.val());
         assert!((a_log[1] - 2f32.ln()).abs() < 1e-7 && a_log[4] == 0.0);
+    }
+
+    /// The layer applies Δ = softplus(z) inside the fused scan; the result and the gradients of
+    /// the step projection equal Burn's `softplus` followed by the plain scan. Both evaluate
+    /// ln(1 + e^z) with `log1p` and the same threshold, so only summation order differs:
+    /// ≲ 1e-6 of the output / gradient scale.
+    #[test]
+    fn layer_with_fused_softplus_matches_the_unfused_composition() {
+        let device = crate::test_util::cpu().autodiff();
+        let mut rng = SeedStream::new(8);
+        let ssm = SelectiveSsm::new(&mut rng, 6, 3, 0.01, 1.0, &device);
+        let shape = [4, 5, 6];
+        let x = to_tensor(&sample(&mut rng, 120, -2.0, 2.0), shape, &device);
+        let r = to_tensor(&sample(&mut rng, 120, -1.0, 1.0), shape, &device);
+        let fused = ssm.forward(x.clone());
+        let z = init::apply_rows(&ssm.dt_proj, x.clone());
+        let unfused = selective_scan(
+            x.clone(),
+            softplus(z, 1.0),
+            ssm.a_log.val(),
+            init::apply_rows(&ssm.b_proj, x.clone()),
+            init::apply_rows(&ssm.c_proj, x.clone()),
+            ssm.d.val(),
+        );
+        let close = |a: Vec<f32>, b: Vec<f32>, what: &str| {
+            let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            assert!(scale > 1e-4, "{what}: vanishing scale");
+            for (u, v) in a.iter().zip(&b) {
+                assert!((u - v).abs() <= 1e-6 * scale, "{what}: {u} vs {v}");
+            }
+        };
+        close(values(fused.clone()), values(unfused.clone()), "y");
+        let g1 = fused.mul(r.clone()).sum().backward();
+        let g2 = unfused.mul(r).sum().backward();
+        let w = ssm.dt_proj.weight.val();
+        let bias = ssm.dt_proj.bias.as_ref().unwrap().val();
+        close(
+            values(w.grad(&g1).unwrap()),
+            values(w.grad(&g2).unwrap()),
+            "∂W_Δ",
+        );
+        close(
+            values(bias.grad(&g1).unwrap()),
+            values(bias.grad(&g2).unwrap()),
+            "∂b_Δ",
+        );
+        close(
+            values(x.grad(&g1).unwrap()),
+            values(x.grad(&g2).unwrap()),
+            "∂x",
+        );
     }
 }

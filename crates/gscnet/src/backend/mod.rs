@@ -11,7 +11,7 @@ mod ndarray;
 #[allow(unused_macros)]
 macro_rules! with_scan_inputs {
     ($read:path, $dims:path, $x:expr, $delta:expr, $a_log:expr, $b:expr, $c:expr, $d:expr,
-     |$s:ident| $body:expr) => {{
+     $softplus:expr, |$s:ident| $body:expr) => {{
         let (xd, ad) = ($dims($x), $dims($a_log));
         let dims = $crate::cpu::scan::ScanDims {
             k: xd[0],
@@ -33,6 +33,7 @@ macro_rules! with_scan_inputs {
                                     b,
                                     c,
                                     d,
+                                    softplus: $softplus,
                                 };
                                 $body
                             })
@@ -59,6 +60,7 @@ macro_rules! impl_cpu_spectral_ops {
                 b: FloatTensor<Self>,
                 c: FloatTensor<Self>,
                 d: FloatTensor<Self>,
+                softplus: bool,
             ) -> FloatTensor<Self> {
                 let shape = $dims(&x);
                 let y = $crate::backend::with_scan_inputs!(
@@ -70,6 +72,7 @@ macro_rules! impl_cpu_spectral_ops {
                     &b,
                     &c,
                     &d,
+                    softplus,
                     |s| $crate::cpu::scan::scan_forward(&s)
                 );
                 $write(y, shape)
@@ -82,6 +85,7 @@ macro_rules! impl_cpu_spectral_ops {
                 b: FloatTensor<Self>,
                 c: FloatTensor<Self>,
                 d: FloatTensor<Self>,
+                softplus: bool,
                 grad: FloatTensor<Self>,
             ) -> (
                 FloatTensor<Self>,
@@ -100,6 +104,7 @@ macro_rules! impl_cpu_spectral_ops {
                     &b,
                     &c,
                     &d,
+                    softplus,
                     |s| $read(&grad, |grad| $crate::cpu::scan::scan_backward(&s, grad))
                 );
                 (
