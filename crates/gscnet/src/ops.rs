@@ -25,8 +25,9 @@ pub trait SpectralOps: Backend {
         softplus: bool,
     ) -> FloatTensor<Self>;
 
-    /// Gradients `(x, Δ, A_log, B, C, D)` of `⟨grad, selective_scan(..)⟩`.
-    #[allow(clippy::type_complexity)]
+    /// Gradients `(x, Δ, A_log, B, C, D)` of `⟨grad, selective_scan(..)⟩` (Δ: of the raw step
+    /// z when `softplus`).
+    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
     fn selective_scan_backward(
         x: FloatTensor<Self>,
         delta: FloatTensor<Self>,
