@@ -20,7 +20,7 @@
 
 use rayon::prelude::*;
 
-use super::{BLOCK, exp, sigmoid, sum_partials};
+use super::{BLOCK, sigmoid, sum_partials};
 
 /// Sizes of one scan: K Gaussians, M channels (sequence length), E features, N state size.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -144,7 +144,7 @@ fn states(t: &Tile, dims: ScanDims, ei: usize, a: &[f32], s: &mut Scratch) {
         } else {
             let prev = &prev[(mi - 1) * n..];
             for ((((h, ab), &hp), &b), &a) in cur.iter_mut().zip(decay).zip(prev).zip(b).zip(a) {
-                *ab = exp(dt * a);
+                *ab = (dt * a).exp();
                 *h = *ab * hp + dx * b;
             }
         }
@@ -171,7 +171,7 @@ fn forward_tile(t: &Tile, dims: ScanDims, a: &[f32], d: &[f32], h: &mut [f32], y
                 }
             } else {
                 for (((h, &a), &b), &c) in h.iter_mut().zip(a).zip(b).zip(c) {
-                    *h = exp(dt * a) * *h + dx * b;
+                    *h = (dt * a).exp() * *h + dx * b;
                     acc += c * *h;
                 }
             }
