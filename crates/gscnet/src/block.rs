@@ -17,7 +17,8 @@ use burn::nn::{LayerNorm, LayerNormConfig, Linear};
 use burn::tensor::activation::silu;
 use burn::tensor::{Device, Tensor};
 
-use crate::init;
+use crate::conv::spectral_conv_silu;
+use crate::init::{self, apply_rows};
 use crate::ssm::SelectiveSsm;
 
 /// A gated spectral SSM block with residual connection and post-normalisation.
@@ -56,12 +57,9 @@ impl SpectralBlock {
 
     /// `x` [K, M, d] → [K, M, d].
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        let u = self.in_proj.forward(x.clone());
-        // Conv1d works on [batch, channels, length]: the spectral axis is the length.
-        let u = self.conv.forward(u.swap_dims(1, 2)).swap_dims(1, 2);
-        let u = silu(u);
+        let u = spectral_conv_silu(apply_rows(&self.in_proj, x.clone()), &self.conv);
         let y = self.ssm.forward(u);
-        let gated = y.mul(silu(self.gate_proj.forward(x.clone())));
-        self.norm.forward(x.add(self.out_proj.forward(gated)))
+        let gated = y.mul(silu(apply_rows(&self.gate_proj, x.clone())));
+        self.norm.forward(x.add(apply_rows(&self.out_proj, gated)))
     }
 }

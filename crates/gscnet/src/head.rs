@@ -58,7 +58,7 @@ impl CurveHead {
     pub fn forward(&self, h: Tensor<3>, spectral: Tensor<2>) -> Tensor<2> {
         let [k, m, _] = h.dims();
         let pooled = h.clone().mean_dim(1).squeeze_dim::<2>(1); // [K, d]
-        let tok = self.token.forward(h).reshape([k, m]);
+        let tok = init::apply_rows(&self.token, h).reshape([k, m]);
         let basis = self
             .coefficients
             .forward(pooled.clone())
@@ -72,7 +72,7 @@ impl CurveHead {
                     .forward(spectral)
                     .unsqueeze_dim::<3>(0),
             );
-        let res = self.residual_out.forward(silu(hidden)).reshape([k, m]);
+        let res = init::apply_rows(&self.residual_out, silu(hidden)).reshape([k, m]);
         tok.add(basis).add(res)
     }
 }

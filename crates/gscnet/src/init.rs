@@ -75,6 +75,18 @@ pub(crate) fn linear(
     }
 }
 
+/// `linear` applied to every token of `x` `[K, M, d_in]` → `[K, M, d_out]`, as one 2-D matmul on
+/// the `[K·M, d_in]` rows. (Burn's `Linear` on a 3-D input broadcasts the weight over K, and its
+/// autodiff then forms a `[K, d_in, d_out]` weight gradient before summing it: ~K times the
+/// memory traffic of the 2-D form.)
+pub(crate) fn apply_rows(linear: &Linear, x: Tensor<3>) -> Tensor<3> {
+    let [k, m, d_in] = x.dims();
+    let [_, d_out] = linear.weight.val().dims();
+    linear
+        .forward(x.reshape([k * m, d_in]))
+        .reshape([k, m, d_out])
+}
+
 /// A depthwise (one filter per channel), centred, zero-padded 1-D convolution over an odd
 /// `kernel` on `[batch, channels, length]`; output length equals input length.
 pub(crate) fn depthwise_conv1d(

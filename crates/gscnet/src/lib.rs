@@ -18,8 +18,12 @@
 //! # Ok(()) }
 //! ```
 
+mod autodiff;
+mod backend;
 pub mod block;
 pub mod config;
+pub mod conv;
+pub mod cpu;
 pub mod curve;
 pub mod error;
 pub mod grid;
@@ -28,6 +32,7 @@ pub mod head;
 pub(crate) mod init;
 pub mod mlp;
 pub mod model;
+pub mod ops;
 pub mod ssm;
 pub mod tokenizer;
 

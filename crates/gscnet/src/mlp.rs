@@ -40,8 +40,8 @@ impl CurveMlp {
         let [m] = tau.dims();
         let (mut x, _) = self.tokenizer.forward(u_c, tau);
         for layer in &self.hidden {
-            x = silu(layer.forward(x));
+            x = silu(init::apply_rows(layer, x));
         }
-        self.out.forward(x).reshape([k, m])
+        init::apply_rows(&self.out, x).reshape([k, m])
     }
 }

@@ -10,19 +10,19 @@
 //! y_m = C_m · h_m + D ⊙ x_m
 //! ```
 //!
-//! Δ, B and C depend on the token (selectivity). M is small (2–16), so the scan is a loop over m
-//! written with Burn tensor ops and autodiff provides the backward pass (checked against finite
-//! differences in the tests). Memory: the autodiff graph keeps O(K·M·E·N) floats.
+//! Δ, B and C depend on the token (selectivity). The scan is one fused op with a hand-written
+//! reverse-time adjoint ([`crate::cpu::scan`], registered for the CPU backends and Autodiff in
+//! [`crate::ops`]); the tests check it against an f64 host loop and finite differences. Memory:
+//! autodiff keeps only the op's inputs (O(K·M·(E+N)) floats); the backward recomputes the states.
 
 use crate::init::SeedStream;
 use burn::module::{Module, Param};
 use burn::nn::Linear;
-use burn::tensor::activation::softplus;
 use burn::tensor::{Device, Tensor};
 
 use crate::init;
 
-/// Runs the selective scan.
+/// Runs the selective scan (fused CPU op: Flex or NdArray devices, with or without autodiff).
 ///
 /// Shapes: `x` [K, M, E], `delta` (Δ > 0) [K, M, E], `a_log` [E, N], `b` [K, M, N],
 /// `c` [K, M, N], `d` [E] → `y` [K, M, E]. Panics on inconsistent shapes (internal API: the
@@ -46,28 +46,7 @@ pub fn selective_scan(
     assert_eq!(c.dims(), [k, m_len, n], "selective_scan: C shape");
     assert_eq!(d.dims(), [e], "selective_scan: D shape");
 
-    let a = a_log.exp().neg().unsqueeze_dim::<3>(0); // [1, E, N]
-    let d = d.unsqueeze_dim::<2>(0); // [1, E]
-    let mut h: Option<Tensor<3>> = None; // [K, E, N]
-    let mut ys = Vec::with_capacity(m_len);
-    for m in 0..m_len {
-        let x_m = x.clone().narrow(1, m, 1).reshape([k, e]);
-        let dt_m = delta.clone().narrow(1, m, 1).reshape([k, e]);
-        let b_m = b.clone().narrow(1, m, 1).reshape([k, 1, n]);
-        let c_m = c.clone().narrow(1, m, 1).reshape([k, 1, n]);
-        let drive = dt_m.clone().mul(x_m.clone()).unsqueeze_dim::<3>(2).mul(b_m); // B̄ x
-        let h_m = match h {
-            None => drive,
-            Some(prev) => {
-                let a_bar = dt_m.unsqueeze_dim::<3>(2).mul(a.clone()).exp();
-                a_bar.mul(prev).add(drive)
-            }
-        };
-        let y_m = h_m.clone().mul(c_m).sum_dim(2).reshape([k, e]);
-        ys.push(y_m.add(d.clone().mul(x_m)));
-        h = Some(h_m);
-    }
-    Tensor::stack(ys, 1)
+    crate::ops::fused_selective_scan(x, delta, a_log, b, c, d, false)
 }
 
 /// The selective SSM layer: input-dependent Δ, B, C from the (convolved) tokens, learned A_log
@@ -119,10 +98,17 @@ impl SelectiveSsm {
 
     /// `x` [K, M, E] → [K, M, E].
     pub fn forward(&self, x: Tensor<3>) -> Tensor<3> {
-        let delta = softplus(self.dt_proj.forward(x.clone()), 1.0);
-        let b = self.b_proj.forward(x.clone());
-        let c = self.c_proj.forward(x.clone());
-        selective_scan(x, delta, self.a_log.val(), b, c, self.d.val())
+        // Raw steps z; the scan applies Δ = softplus(z) itself.
+        let z = init::apply_rows(&self.dt_proj, x.clone());
+        let b = init::apply_rows(&self.b_proj, x.clone());
+        let c = init::apply_rows(&self.c_proj, x.clone());
+        let [k, m, e] = x.dims();
+        let n = self.a_log.val().dims()[1];
+        assert!(
+            z.dims() == [k, m, e] && b.dims() == [k, m, n] && c.dims() == [k, m, n],
+            "SelectiveSsm: projections do not match the tokens' width {e} and state size {n}"
+        );
+        crate::ops::fused_selective_scan(x, z, self.a_log.val(), b, c, self.d.val(), true)
     }
 }
 
@@ -130,6 +116,7 @@ impl SelectiveSsm {
 mod tests {
     use super::*;
     use burn::tensor::TensorData;
+    use burn::tensor::activation::softplus;
 
     const K: usize = 2;
     const M: usize = 4;
@@ -303,5 +290,56 @@ mod tests {
         }
         let a_log = values(ssm.a_log.val());
         assert!((a_log[1] - 2f32.ln()).abs() < 1e-7 && a_log[4] == 0.0);
+    }
+
+    /// The layer applies Δ = softplus(z) inside the fused scan; the result and the gradients of
+    /// the step projection equal Burn's `softplus` followed by the plain scan. Both evaluate
+    /// ln(1 + e^z) with `log1p` and the same threshold, so only summation order differs:
+    /// ≲ 1e-6 of the output / gradient scale.
+    #[test]
+    fn layer_with_fused_softplus_matches_the_unfused_composition() {
+        let device = crate::test_util::cpu().autodiff();
+        let mut rng = SeedStream::new(8);
+        let ssm = SelectiveSsm::new(&mut rng, 6, 3, 0.01, 1.0, &device);
+        let shape = [4, 5, 6];
+        let x = to_tensor(&sample(&mut rng, 120, -2.0, 2.0), shape, &device);
+        let r = to_tensor(&sample(&mut rng, 120, -1.0, 1.0), shape, &device);
+        let fused = ssm.forward(x.clone());
+        let z = init::apply_rows(&ssm.dt_proj, x.clone());
+        let unfused = selective_scan(
+            x.clone(),
+            softplus(z, 1.0),
+            ssm.a_log.val(),
+            init::apply_rows(&ssm.b_proj, x.clone()),
+            init::apply_rows(&ssm.c_proj, x.clone()),
+            ssm.d.val(),
+        );
+        let close = |a: Vec<f32>, b: Vec<f32>, what: &str| {
+            let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            assert!(scale > 1e-4, "{what}: vanishing scale");
+            for (u, v) in a.iter().zip(&b) {
+                assert!((u - v).abs() <= 1e-6 * scale, "{what}: {u} vs {v}");
+            }
+        };
+        close(values(fused.clone()), values(unfused.clone()), "y");
+        let g1 = fused.mul(r.clone()).sum().backward();
+        let g2 = unfused.mul(r).sum().backward();
+        let w = ssm.dt_proj.weight.val();
+        let bias = ssm.dt_proj.bias.as_ref().unwrap().val();
+        close(
+            values(w.grad(&g1).unwrap()),
+            values(w.grad(&g2).unwrap()),
+            "∂W_Δ",
+        );
+        close(
+            values(bias.grad(&g1).unwrap()),
+            values(bias.grad(&g2).unwrap()),
+            "∂b_Δ",
+        );
+        close(
+            values(x.grad(&g1).unwrap()),
+            values(x.grad(&g2).unwrap()),
+            "∂x",
+        );
     }
 }

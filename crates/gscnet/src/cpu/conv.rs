@@ -1,0 +1,146 @@
+//! The depthwise convolution over the spectral axis followed by SiLU, and its adjoint.
+//!
+//! Layouts (row-major, f32): input `u` and output `[K, M, E]`, weight `w` `[E, J]` (J odd, the
+//! taps of a centred kernel), bias `[E]`. With r = (J − 1)/2 and zero padding:
+//!
+//! ```text
+//! p_{k,m,e} = bias_e + Σ_j w_{e,j} u_{k, m+j−r, e}      (terms with m+j−r ∉ [0, M) vanish)
+//! y         = SiLU(p) = p σ(p)
+//! ```
+//!
+//! This is exactly Burn's `Conv1d` with `groups = E`, stride 1, dilation 1 and padding r on the
+//! `[K, E, M]` transpose, fused with the activation and without the transposes.
+
+use rayon::prelude::*;
+
+use super::{BLOCK, sigmoid, sum_partials};
+
+/// Sizes: K Gaussians, M channels, E features, J taps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConvDims {
+    pub k: usize,
+    pub m: usize,
+    pub e: usize,
+    pub j: usize,
+}
+
+/// Gradients of ⟨ḡ, SiLU(conv(u))⟩ with respect to `u`, `w` and `bias`.
+#[derive(Debug, Clone)]
+pub struct ConvGrads {
+    pub u: Vec<f32>,
+    pub w: Vec<f32>,
+    pub bias: Vec<f32>,
+}
+
+fn check(dims: ConvDims, u: &[f32], w: &[f32], bias: &[f32]) {
+    let ConvDims { k, m, e, j } = dims;
+    assert_eq!(u.len(), k * m * e, "spectral conv: input length");
+    assert_eq!(w.len(), e * j, "spectral conv: weight length");
+    assert_eq!(bias.len(), e, "spectral conv: bias length");
+    assert!(
+        j % 2 == 1,
+        "spectral conv: the kernel must have an odd number of taps"
+    );
+}
+
+/// Pre-activations p `[M, E]` of one Gaussian's tile `u` `[M, E]`.
+fn pre_activation(dims: ConvDims, u: &[f32], w: &[f32], bias: &[f32], p: &mut [f32]) {
+    let ConvDims { m, e, j, .. } = dims;
+    let r = j / 2;
+    for mi in 0..m {
+        let out = &mut p[mi * e..(mi + 1) * e];
+        out.copy_from_slice(bias);
+        for tap in 0..j {
+            // Source row mi + tap − r, skipped outside [0, M).
+            let Some(src) = (mi + tap).checked_sub(r).filter(|&s| s < m) else {
+                continue;
+            };
+            let row = &u[src * e..(src + 1) * e];
+            for ei in 0..e {
+                out[ei] += w[ei * j + tap] * row[ei];
+            }
+        }
+    }
+}
+
+/// y = SiLU(conv(u)), `[K, M, E]`.
+pub fn conv_silu_forward(dims: ConvDims, u: &[f32], w: &[f32], bias: &[f32]) -> Vec<f32> {
+    check(dims, u, w, bias);
+    let me = dims.m * dims.e;
+    let mut y = vec![0.0f32; u.len()];
+    if me == 0 {
+        return y;
+    }
+    y.par_chunks_mut(BLOCK * me)
+        .zip(u.par_chunks(BLOCK * me))
+        .for_each(|(ys, us)| {
+            for (yk, uk) in ys.chunks_mut(me).zip(us.chunks(me)) {
+                pre_activation(dims, uk, w, bias, yk);
+                for v in yk.iter_mut() {
+                    *v *= sigmoid(*v);
+                }
+            }
+        });
+    y
+}
+
+/// Gradients of ⟨`gy`, SiLU(conv(u))⟩ (`gy` `[K, M, E]`).
+pub fn conv_silu_backward(
+    dims: ConvDims,
+    u: &[f32],
+    w: &[f32],
+    bias: &[f32],
+    gy: &[f32],
+) -> ConvGrads {
+    check(dims, u, w, bias);
+    assert_eq!(gy.len(), u.len(), "spectral conv: output gradient length");
+    let ConvDims { m, e, j, .. } = dims;
+    let me = m * e;
+    let r = j / 2;
+    let mut gu = vec![0.0f32; u.len()];
+    let mut partials: Vec<(Vec<f32>, Vec<f32>)> = Vec::new();
+    if me > 0 {
+        partials = gu
+            .par_chunks_mut(BLOCK * me)
+            .zip(u.par_chunks(BLOCK * me))
+            .zip(gy.par_chunks(BLOCK * me))
+            .map(|((gus, us), gys)| {
+                let mut gw = vec![0.0f32; e * j];
+                let mut gbias = vec![0.0f32; e];
+                let mut gp = vec![0.0f32; me];
+                for ((guk, uk), gyk) in gus.chunks_mut(me).zip(us.chunks(me)).zip(gys.chunks(me)) {
+                    // ∂L/∂p = ḡ · SiLU'(p), SiLU'(p) = σ(p)(1 + p(1 − σ(p))).
+                    pre_activation(dims, uk, w, bias, &mut gp);
+                    for (g, &gyv) in gp.iter_mut().zip(gyk) {
+                        let s = sigmoid(*g);
+                        *g = gyv * s * (1.0 + *g * (1.0 - s));
+                    }
+                    for mi in 0..m {
+                        let gprow = &gp[mi * e..(mi + 1) * e];
+                        for (gb, g) in gbias.iter_mut().zip(gprow) {
+                            *gb += g;
+                        }
+                        for tap in 0..j {
+                            let Some(src) = (mi + tap).checked_sub(r).filter(|&s| s < m) else {
+                                continue;
+                            };
+                            let urow = &uk[src * e..(src + 1) * e];
+                            let gurow = &mut guk[src * e..(src + 1) * e];
+                            for ei in 0..e {
+                                gurow[ei] += w[ei * j + tap] * gprow[ei];
+                                gw[ei * j + tap] += gprow[ei] * urow[ei];
+                            }
+                        }
+                    }
+                }
+                (gw, gbias)
+            })
+            .collect();
+    }
+    let (gw, gbias): (Vec<_>, Vec<_>) = partials.into_iter().unzip();
+    ConvGrads {
+        u: gu,
+        w: sum_partials(gw, e * j),
+        bias: sum_partials(gbias, e),
+    }
+}
