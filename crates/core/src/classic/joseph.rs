@@ -861,7 +861,7 @@ impl Joseph {
 }
 
 /// Rounding constant of [`floorish`]: 1.5·2²³.
-const MAGIC: f32 = 12_582_912.0;
+pub(crate) const MAGIC: f32 = 12_582_912.0;
 
 /// `q` with `q ≤ x ≤ q + 1` for |x| < 2²², without a rounding instruction or a saturating cast
 /// (both are slow on baseline x86-64 and block vectorisation): adding 1.5·2²³ rounds `x − ½` to
