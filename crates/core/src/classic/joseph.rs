@@ -333,6 +333,8 @@ enum RowPlan {
 /// zero), plus `LANES − 1` rows of slack for the vector sampler.
 struct Sheet {
     data: Vec<f32>,
+    /// Per plane: volume offset at z = `zlo` and weight of the two horizontal neighbours.
+    taps: Vec<[(usize, f32); 2]>,
     h: usize,
     zlo: usize,
     zhi: usize,
@@ -342,6 +344,7 @@ impl Sheet {
     fn new() -> Sheet {
         Sheet {
             data: Vec::new(),
+            taps: Vec::new(),
             h: 0,
             zlo: 0,
             zhi: 0,
@@ -362,53 +365,68 @@ impl Sheet {
         (self.zlo as i32 - 1, self.zhi as i32)
     }
 
-    /// Forward: `S[m][z] = Σ_corners w · V(plane, corner, z)` for the z-range of the sheet; corners
-    /// outside `jr` (inclusive, within the grid) hold zeros and are skipped.
-    fn build(&mut self, vol: &[f32], layout: Layout, c: &ColumnWalk, jr: (usize, usize)) {
-        let (h, zlo) = (self.h, self.zlo);
+    /// Volume offset (at z = `zlo`) and weight of the two horizontal neighbours of every plane;
+    /// neighbours outside `jr` (inclusive, within the grid) get weight 0 and offset 0.
+    fn corners(&mut self, layout: Layout, c: &ColumnWalk, jr: (usize, usize)) {
         let st = layout.stride;
-        for m in 0..c.planes() {
-            let plane = (c.lo as usize + m) * st[c.k] + zlo * st[2];
-            let dst = &mut self.data[m * h + 1..m * h + h - 1];
-            for (q, w) in c.corners(m) {
+        self.taps.clear();
+        self.taps.extend((0..c.planes()).map(|m| {
+            let plane = (c.lo as usize + m) * st[c.k] + self.zlo * st[2];
+            c.corners(m).map(|(q, w)| {
                 if q < jr.0 as i32 || q > jr.1 as i32 {
-                    continue;
+                    (0, 0.0)
+                } else {
+                    (plane + q as usize * st[c.j], w)
                 }
-                let base = plane + q as usize * st[c.j];
-                if st[2] == 1 {
-                    let src = &vol[base..base + h - 2];
-                    for (d, &v) in dst.iter_mut().zip(src) {
+            })
+        }));
+    }
+
+    /// Forward: `S[m][z] = Σ_corners w · V(plane, corner, z)` over the sheet's z-range. With
+    /// z-fastest volumes each corner is a contiguous z-line; otherwise the loops run z-outer so
+    /// that the volume is read slice by slice.
+    fn build(&mut self, vol: &[f32], layout: Layout, c: &ColumnWalk, jr: (usize, usize)) {
+        self.corners(layout, c, jr);
+        let (h, sz, nzs) = (self.h, layout.stride[2], self.h - 2);
+        if sz == 1 {
+            for (m, taps) in self.taps.iter().enumerate() {
+                let dst = &mut self.data[m * h + 1..m * h + h - 1];
+                for &(base, w) in taps.iter().filter(|t| t.1 != 0.0) {
+                    for (d, &v) in dst.iter_mut().zip(&vol[base..base + nzs]) {
                         *d += w * v;
                     }
-                } else {
-                    for (t, d) in dst.iter_mut().enumerate() {
-                        *d += w * vol[base + t * st[2]];
-                    }
+                }
+            }
+        } else {
+            for t in 0..nzs {
+                for (m, taps) in self.taps.iter().enumerate() {
+                    let [(b0, w0), (b1, w1)] = *taps;
+                    self.data[m * h + 1 + t] += w0 * vol[b0 + t * sz] + w1 * vol[b1 + t * sz];
                 }
             }
         }
     }
 
-    /// Adjoint of [`Sheet::build`]: scatter the sheet's z-range into `acc`.
-    fn scatter(&self, acc: &mut [f32], layout: Layout, c: &ColumnWalk, jr: (usize, usize)) {
-        let (h, zlo) = (self.h, self.zlo);
-        let st = layout.stride;
-        for m in 0..c.planes() {
-            let plane = (c.lo as usize + m) * st[c.k] + zlo * st[2];
-            let src = &self.data[m * h + 1..m * h + h - 1];
-            for (q, w) in c.corners(m) {
-                if q < jr.0 as i32 || q > jr.1 as i32 {
-                    continue;
-                }
-                let base = plane + q as usize * st[c.j];
-                if st[2] == 1 {
-                    let dst = &mut acc[base..base + h - 2];
-                    for (d, &v) in dst.iter_mut().zip(src) {
+    /// Adjoint of [`Sheet::build`]: scatter the sheet's z-range into `acc` (the taps of the last
+    /// [`Sheet::corners`] call, made by `build` or here).
+    fn scatter(&mut self, acc: &mut [f32], layout: Layout, c: &ColumnWalk, jr: (usize, usize)) {
+        self.corners(layout, c, jr);
+        let (h, sz, nzs) = (self.h, layout.stride[2], self.h - 2);
+        if sz == 1 {
+            for (m, taps) in self.taps.iter().enumerate() {
+                let src = &self.data[m * h + 1..m * h + h - 1];
+                for &(base, w) in taps.iter().filter(|t| t.1 != 0.0) {
+                    for (d, &v) in acc[base..base + nzs].iter_mut().zip(src) {
                         *d += w * v;
                     }
-                } else {
-                    for (t, &v) in src.iter().enumerate() {
-                        acc[base + t * st[2]] += w * v;
+                }
+            }
+        } else {
+            for t in 0..nzs {
+                for (m, taps) in self.taps.iter().enumerate() {
+                    let v = self.data[m * h + 1 + t];
+                    for &(base, w) in taps.iter().filter(|t| t.1 != 0.0) {
+                        acc[base + t * sz] += w * v;
                     }
                 }
             }
@@ -614,8 +632,8 @@ impl Joseph {
         } else {
             Layout::zyx(dims)
         };
-        // One accumulator per task over runs of detector columns; at most two tasks per thread.
-        let min_len = lines.div_ceil(2 * rayon::current_num_threads()).max(1);
+        // One accumulator per task over runs of detector columns, one task per thread.
+        let min_len = lines.div_ceil(rayon::current_num_threads()).max(1);
         let partial: Vec<Vec<f32>> = (0..lines)
             .into_par_iter()
             .with_min_len(min_len)
