@@ -177,6 +177,28 @@ struct IndexRay {
     len: f64,
 }
 
+/// The rays of one detector column: origin, index-space displacement and world displacement are
+/// affine in the row (the pixel centre moves linearly along the column), so row `r`'s ray is
+/// row 0's plus `r` times the per-row change.
+struct ColumnRays {
+    a: [[f64; 3]; 2],
+    g: [[f64; 3]; 2],
+    d: [[f64; 3]; 2],
+}
+
+impl ColumnRays {
+    fn ray(&self, row: usize) -> IndexRay {
+        let r = row as f64;
+        let at = |v: &[[f64; 3]; 2]| [0, 1, 2].map(|i| v[0][i] + r * v[1][i]);
+        let d = at(&self.d);
+        IndexRay {
+            a: at(&self.a),
+            g: at(&self.g),
+            len: (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(),
+        }
+    }
+}
+
 /// Dominant axis of an index-space direction (ties go to the later axis).
 fn dominant(g: &[f64; 3]) -> usize {
     (0..3)
@@ -709,32 +731,45 @@ impl Joseph {
         Ok(())
     }
 
-    /// The ray through pixel (col, row) in continuous voxel-index space.
-    fn index_ray(&self, cam: &Camera, col: usize, row: usize) -> IndexRay {
-        let end = cam.pixel_camera(col as f64, row as f64);
-        let start = match cam.projection {
-            Projection::Cone => [0.0; 3],
-            Projection::Parallel => [end[0], end[1], 0.0],
-        };
-        let (o, e) = (cam.to_world(start), cam.to_world(end));
+    /// The rays of detector column `col` in continuous voxel-index space.
+    fn column_rays(&self, cam: &Camera, col: usize) -> ColumnRays {
         let grid = &self.geometry.volume;
-        let (a, b) = (grid.world_to_index(o), grid.world_to_index(e));
-        let d = [e[0] - o[0], e[1] - o[1], e[2] - o[2]];
-        IndexRay {
-            a,
-            g: [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
-            len: (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt(),
+        let ends = |row: f64| {
+            let end = cam.pixel_camera(col as f64, row);
+            let start = match cam.projection {
+                Projection::Cone => [0.0; 3],
+                Projection::Parallel => [end[0], end[1], 0.0],
+            };
+            let (o, e) = (cam.to_world(start), cam.to_world(end));
+            let (a, b) = (grid.world_to_index(o), grid.world_to_index(e));
+            (
+                a,
+                [0, 1, 2].map(|i| b[i] - a[i]),
+                [0, 1, 2].map(|i| e[i] - o[i]),
+            )
+        };
+        let (r0, r1) = (ends(0.0), ends(1.0));
+        let pair = |p: [f64; 3], q: [f64; 3]| [p, [0, 1, 2].map(|i| q[i] - p[i])];
+        ColumnRays {
+            a: pair(r0.0, r1.0),
+            g: pair(r0.1, r1.1),
+            d: pair(r0.2, r1.2),
         }
     }
 
     /// The horizontal walk shared by column `col`'s rays, clipped to `support` in x and y, or
     /// `None` when sheets are off or the column's rays are not coplanar with z (then every row
     /// takes the general walk; cameras built by [`Geometry`] always have vertical columns).
-    fn column_walk(&self, cam: &Camera, col: usize, support: &Support) -> Option<ColumnWalk> {
+    fn column_walk(
+        &self,
+        cam: &Camera,
+        rays: &ColumnRays,
+        support: &Support,
+    ) -> Option<ColumnWalk> {
         if !self.sheets || cam.rotation[1][0] != 0.0 || cam.rotation[1][1] != 0.0 {
             return None;
         }
-        let ray = self.index_ray(cam, col, 0);
+        let ray = rays.ray(0);
         let (a, g) = (&ray.a, &ray.g);
         let k = if g[0].abs() > g[1].abs() { 0 } else { 1 };
         let j = 1 - k;
@@ -766,30 +801,23 @@ impl Joseph {
 
     /// How the ray through (col, row) is traced: on the column sheet when its dominant axis is
     /// the column's horizontal one, else by the general walk.
-    fn plan_row(
-        &self,
-        cam: &Camera,
-        col: usize,
-        row: usize,
-        column: Option<&ColumnWalk>,
-        support: &Support,
-    ) -> RowPlan {
-        let ray = self.index_ray(cam, col, row);
+    fn plan_row(ray: &IndexRay, column: Option<&ColumnWalk>, support: &Support) -> RowPlan {
         let plan = match column {
             Some(c) if ray.g[2].abs() < ray.g[c.k].abs() => {
                 if c.lo > c.hi {
                     None
                 } else {
-                    c.sheet_ray(&ray, support.0[2], support.1[2])
+                    c.sheet_ray(ray, support.0[2], support.1[2])
                         .map(RowPlan::Sheet)
                 }
             }
-            _ => walk(&ray, dominant(&ray.g), support).map(RowPlan::Walk),
+            _ => walk(ray, dominant(&ray.g), support).map(RowPlan::Walk),
         };
         plan.unwrap_or(RowPlan::Miss)
     }
 
-    /// Forward-project one detector column into `out` (its rows).
+    /// Forward-project one detector column into `out` (its rows), compiled for AVX2+FMA when
+    /// the CPU has them (ray setup, sheet build and sampling all in one function).
     #[allow(clippy::too_many_arguments)]
     fn project_column(
         &self,
@@ -801,10 +829,47 @@ impl Joseph {
         sheet: &mut Sheet,
         out: &mut [f32],
     ) {
-        let column = self.column_walk(cam, col, support);
+        #[cfg(target_arch = "x86_64")]
+        if self.simd {
+            // SAFETY: `simd` is only set when the CPU has AVX2 and FMA.
+            return unsafe { self.project_column_avx2(cam, col, vol, layout, support, sheet, out) };
+        }
+        self.project_column_body(cam, col, vol, layout, support, sheet, out)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::too_many_arguments)]
+    fn project_column_avx2(
+        &self,
+        cam: &Camera,
+        col: usize,
+        vol: &[f32],
+        layout: Layout,
+        support: &Support,
+        sheet: &mut Sheet,
+        out: &mut [f32],
+    ) {
+        self.project_column_body(cam, col, vol, layout, support, sheet, out)
+    }
+
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn project_column_body(
+        &self,
+        cam: &Camera,
+        col: usize,
+        vol: &[f32],
+        layout: Layout,
+        support: &Support,
+        sheet: &mut Sheet,
+        out: &mut [f32],
+    ) {
+        let rays = self.column_rays(cam, col);
+        let column = self.column_walk(cam, &rays, support);
         let mut built = false;
         for (row, o) in out.iter_mut().enumerate() {
-            match self.plan_row(cam, col, row, column.as_ref(), support) {
+            match Self::plan_row(&rays.ray(row), column.as_ref(), support) {
                 RowPlan::Sheet(r) => {
                     let c = column.as_ref().expect("sheet rows have a column walk");
                     if !built {
@@ -824,7 +889,8 @@ impl Joseph {
         }
     }
 
-    /// Adjoint of [`Joseph::project_column`]: add column `col`'s rows `vals` into `acc`.
+    /// Adjoint of [`Joseph::project_column`]: add column `col`'s rows `vals` into `acc`
+    /// (compiled for AVX2+FMA when the CPU has them; the arithmetic is the same on both paths).
     #[allow(clippy::too_many_arguments)]
     fn adjoint_column(
         &self,
@@ -836,13 +902,50 @@ impl Joseph {
         full: &Support,
         sheet: &mut Sheet,
     ) {
-        let column = self.column_walk(cam, col, full);
+        #[cfg(target_arch = "x86_64")]
+        if self.simd {
+            // SAFETY: `simd` is only set when the CPU has AVX2 and FMA.
+            return unsafe { self.adjoint_column_avx2(cam, col, vals, acc, layout, full, sheet) };
+        }
+        self.adjoint_column_body(cam, col, vals, acc, layout, full, sheet)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::too_many_arguments)]
+    fn adjoint_column_avx2(
+        &self,
+        cam: &Camera,
+        col: usize,
+        vals: &[f32],
+        acc: &mut [f32],
+        layout: Layout,
+        full: &Support,
+        sheet: &mut Sheet,
+    ) {
+        self.adjoint_column_body(cam, col, vals, acc, layout, full, sheet)
+    }
+
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn adjoint_column_body(
+        &self,
+        cam: &Camera,
+        col: usize,
+        vals: &[f32],
+        acc: &mut [f32],
+        layout: Layout,
+        full: &Support,
+        sheet: &mut Sheet,
+    ) {
+        let rays = self.column_rays(cam, col);
+        let column = self.column_walk(cam, &rays, full);
         let mut used = false;
         for (row, &val) in vals.iter().enumerate() {
             if val == 0.0 {
                 continue;
             }
-            match self.plan_row(cam, col, row, column.as_ref(), full) {
+            match Self::plan_row(&rays.ray(row), column.as_ref(), full) {
                 RowPlan::Sheet(r) => {
                     let c = column.as_ref().expect("sheet rows have a column walk");
                     if !used {
