@@ -126,7 +126,8 @@ impl Timing {
         }
     }
 
-    /// Insert `key` (median), `key_min`, `key_max` (without the `_s` suffix doubled).
+    /// Insert the median as `key` and the extremes as `<stem>_min_s`, `<stem>_max_s`, where
+    /// `stem` is `key` without its `_s` suffix.
     fn insert(&self, out: &mut Value, key: &str) {
         let stem = key.strip_suffix("_s").unwrap_or(key);
         out[key] = json!(self.median);
@@ -376,5 +377,28 @@ fn run_rtk(
             "available": false,
             "reason": format!("RTK script failed ({}): {}", output.status, String::from_utf8_lossy(&output.stderr).trim()),
         })),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn timing_reports_median_min_and_max() {
+        let t = Timing::of(&[0.3, 0.1, 0.5, 0.2, 0.4]);
+        assert_eq!(
+            t,
+            Timing {
+                median: 0.3,
+                min: 0.1,
+                max: 0.5
+            }
+        );
+        let t = Timing::of(&[4.0, 1.0, 2.0, 3.0]);
+        assert_eq!(t.median, 2.5);
+        let mut v = json!({});
+        t.insert(&mut v, "fp_s");
+        assert_eq!(v, json!({"fp_s": 2.5, "fp_min_s": 1.0, "fp_max_s": 4.0}));
     }
 }

@@ -429,8 +429,7 @@ impl Sheet {
         }
     }
 
-    /// Adjoint of [`Sheet::build`]: scatter the sheet's z-range into `acc` (the taps of the last
-    /// [`Sheet::corners`] call, made by `build` or here).
+    /// Adjoint of [`Sheet::build`]: scatter the sheet's z-range into `acc`, same taps.
     fn scatter(&mut self, acc: &mut [f32], layout: Layout, c: &ColumnWalk, jr: (usize, usize)) {
         self.corners(layout, c, jr);
         let (h, sz, nzs) = (self.h, layout.stride[2], self.h - 2);
