@@ -30,6 +30,12 @@ struct ClassicArgs {
     /// Skip the forward-projection error at 256³.
     #[arg(long)]
     no_256: bool,
+    /// Only the speed comparison: no dense FDK, SART, CGLS, 256³ error or ordering check.
+    #[arg(long)]
+    speed_only: bool,
+    /// Timed runs per operation on both sides (median reported, with min and max).
+    #[arg(long, value_name = "N")]
+    repeats: Option<usize>,
     /// Only the SART > CGLS > FDK check.
     #[arg(long)]
     ordering_only: bool,
@@ -60,6 +66,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         if a.no_256 {
             opts.fp_256 = false;
+        }
+        if a.speed_only {
+            opts = BenchOptions {
+                full_views: 0,
+                sart_epochs: 0,
+                cgls_iterations: 0,
+                fp_256: false,
+                ordering: false,
+                ..opts
+            };
+        }
+        if let Some(n) = a.repeats {
+            opts.repeats = n.max(1);
         }
         run_classic(&opts)?
     };

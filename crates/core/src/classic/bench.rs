@@ -12,7 +12,9 @@
 //! error at 256³, and the SART > CGLS > FDK ordering on the `phantom-3mono` configuration
 //! (64³, 96², 50 views, 40/70/100 keV, default iterations). Then `bench/rtk_classic.py` runs RTK's
 //! Joseph projector and FDK on the same volume and projections (skipped with a message when RTK is
-//! not importable). Timings on both sides are the best of `repeats` runs.
+//! not importable). Timings on both sides are the median of `repeats` runs, reported with the
+//! minimum and maximum (`*_min_s`, `*_max_s`): one run on a shared machine varies by tens of
+//! percent.
 
 use super::recon::{Method, ReconConfig, reconstruct_channel};
 use super::{Joseph, SartOptions, Window, backproject_voxel, cgls, fdk, sart};
@@ -46,7 +48,7 @@ pub struct BenchOptions {
     pub python: Option<String>,
     /// RTK threads.
     pub rtk_threads: usize,
-    /// Timed runs per operation (best is reported).
+    /// Timed runs per operation (the median is reported, with min and max).
     pub repeats: usize,
 }
 
@@ -63,7 +65,7 @@ impl Default for BenchOptions {
             ordering: true,
             python: Some(std::env::var("PRISM_PYTHON").unwrap_or_else(|_| "python3".into())),
             rtk_threads: 2,
-            repeats: 2,
+            repeats: 5,
         }
     }
 }
@@ -98,16 +100,53 @@ pub fn phantom_data(
     Ok((channel.volume(&fractions)?, channel.project(&paths)?))
 }
 
-fn best<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, f64)> {
-    let mut best = f64::INFINITY;
+/// Wall-clock statistics of repeated runs, seconds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Timing {
+    median: f64,
+    min: f64,
+    max: f64,
+}
+
+impl Timing {
+    /// Median (mean of the middle two for an even count), min and max of `samples` (non-empty).
+    fn of(samples: &[f64]) -> Timing {
+        let mut s = samples.to_vec();
+        s.sort_by(f64::total_cmp);
+        let n = s.len();
+        let median = if n % 2 == 1 {
+            s[n / 2]
+        } else {
+            0.5 * (s[n / 2 - 1] + s[n / 2])
+        };
+        Timing {
+            median,
+            min: s[0],
+            max: s[n - 1],
+        }
+    }
+
+    /// Insert the median as `key` and the extremes as `<stem>_min_s`, `<stem>_max_s`, where
+    /// `stem` is `key` without its `_s` suffix.
+    fn insert(&self, out: &mut Value, key: &str) {
+        let stem = key.strip_suffix("_s").unwrap_or(key);
+        out[key] = json!(self.median);
+        out[format!("{stem}_min_s")] = json!(self.min);
+        out[format!("{stem}_max_s")] = json!(self.max);
+    }
+}
+
+/// Run `f` `repeats` times (at least once); the last result and the timing statistics.
+fn timed<T>(repeats: usize, mut f: impl FnMut() -> Result<T>) -> Result<(T, Timing)> {
+    let mut times = Vec::with_capacity(repeats.max(1));
     let mut out = None;
     for _ in 0..repeats.max(1) {
         let t = Instant::now();
         let r = f()?;
-        best = best.min(t.elapsed().as_secs_f64());
+        times.push(t.elapsed().as_secs_f64());
         out = Some(r);
     }
-    Ok((out.expect("at least one run"), best))
+    Ok((out.expect("at least one run"), Timing::of(&times)))
 }
 
 fn rel_l2(a: &Array3<f32>, b: &Array3<f32>) -> f64 {
@@ -146,10 +185,10 @@ pub fn run(opts: &BenchOptions) -> Result<Value> {
     let r = opts.repeats;
 
     log("Joseph forward projection");
-    let (fp, fp_s) = best(r, || a.forward(truth.view()))?;
+    let (fp, fp_t) = timed(r, || a.forward(truth.view()))?;
     let fp_err = rel_l2(&fp, &analytic);
     log("exact adjoint");
-    let (_, bp_s) = best(r, || a.adjoint(analytic.view()))?;
+    let (_, bp_t) = timed(r, || a.adjoint(analytic.view()))?;
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let x = Array3::from_shape_simple_fn(g.volume.shape_zyx(), || rng.random_range(-1.0f32..1.0));
     let y = Array3::from_shape_simple_fn(a.projection_shape(g.views()), || {
@@ -161,9 +200,9 @@ pub fn run(opts: &BenchOptions) -> Result<Value> {
     log("voxel-driven FDK backprojection");
     let views: Vec<usize> = (0..g.views()).collect();
     let ones = vec![1.0; g.views()];
-    let (_, voxel_bp_s) = best(r, || backproject_voxel(&g, analytic.view(), &views, &ones))?;
+    let (_, voxel_bp_t) = timed(r, || backproject_voxel(&g, analytic.view(), &views, &ones))?;
     log("FDK");
-    let (rec, fdk_s) = best(r, || fdk(&g, analytic.view(), Window::RamLak))?;
+    let (rec, fdk_t) = timed(r, || fdk(&g, analytic.view(), Window::RamLak))?;
     let fdk_psnr = norm_psnr(&rec, &truth)?;
 
     let mut out = json!({
@@ -171,18 +210,18 @@ pub fn run(opts: &BenchOptions) -> Result<Value> {
             "volume": opts.n, "detector": opts.det, "views": opts.views,
             "dso_mm": g.dso, "dsd_mm": g.dsd, "voxel_mm": g.volume.dx, "pitch_mm": g.detector.pitch_u,
             "object": "SpectralPhantom::builtin(110 mm) at 70 keV",
-            "threads": rayon::current_num_threads(), "timing": format!("best of {}", r.max(1)),
+            "threads": rayon::current_num_threads(), "timing": format!("median of {} (min, max in *_min_s, *_max_s)", r.max(1)),
         },
         "adjoint_rel_err": adjoint_rel_err,
         "fp_rel_err_vs_analytic": fp_err,
-        "fp_s": fp_s,
-        "fp_mrays_per_s": (g.views() * g.detector.rows * g.detector.cols) as f64 / fp_s / 1e6,
-        "bp_s": bp_s,
-        "voxel_bp_s": voxel_bp_s,
-        "voxel_bp_gups": (g.volume.len() * g.views()) as f64 / voxel_bp_s / 1e9,
-        "fdk_s": fdk_s,
+        "fp_mrays_per_s": (g.views() * g.detector.rows * g.detector.cols) as f64 / fp_t.median / 1e6,
+        "voxel_bp_gups": (g.volume.len() * g.views()) as f64 / voxel_bp_t.median / 1e9,
         "fdk_psnr": fdk_psnr,
     });
+    fp_t.insert(&mut out, "fp_s");
+    bp_t.insert(&mut out, "bp_s");
+    voxel_bp_t.insert(&mut out, "voxel_bp_s");
+    fdk_t.insert(&mut out, "fdk_s");
 
     if opts.full_views > 0 {
         log(&format!("FDK at {} views", opts.full_views));
@@ -232,9 +271,19 @@ pub fn run(opts: &BenchOptions) -> Result<Value> {
                 .as_f64()
                 .map(|v| v / out[k].as_f64().unwrap_or(f64::NAN))
         };
+        // Worst and best case over the repeats: RTK's fastest over our slowest, and vice versa.
+        let range = |k: &str| {
+            let f = |side: &Value, key: String| side[key].as_f64().unwrap_or(f64::NAN);
+            [
+                f(&rtk, format!("{k}_min_s")) / f(&out, format!("{k}_max_s")),
+                f(&rtk, format!("{k}_max_s")) / f(&out, format!("{k}_min_s")),
+            ]
+        };
         out["ratios"] = json!({
             "fp_speedup_vs_rtk": ratio("fp_s"),
+            "fp_speedup_range": range("fp"),
             "fdk_speedup_vs_rtk": ratio("fdk_s"),
+            "fdk_speedup_range": range("fdk"),
             "fp_err_ours_over_rtk": fp_err / rtk["fp_rel_err_vs_analytic"].as_f64().unwrap_or(f64::NAN),
             "fdk_psnr_ours_minus_rtk": fdk_psnr - rtk["fdk_psnr"].as_f64().unwrap_or(f64::NAN),
         });
@@ -328,5 +377,28 @@ fn run_rtk(
             "available": false,
             "reason": format!("RTK script failed ({}): {}", output.status, String::from_utf8_lossy(&output.stderr).trim()),
         })),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn timing_reports_median_min_and_max() {
+        let t = Timing::of(&[0.3, 0.1, 0.5, 0.2, 0.4]);
+        assert_eq!(
+            t,
+            Timing {
+                median: 0.3,
+                min: 0.1,
+                max: 0.5
+            }
+        );
+        let t = Timing::of(&[4.0, 1.0, 2.0, 3.0]);
+        assert_eq!(t.median, 2.5);
+        let mut v = json!({});
+        t.insert(&mut v, "fp_s");
+        assert_eq!(v, json!({"fp_s": 2.5, "fp_min_s": 1.0, "fp_max_s": 4.0}));
     }
 }

@@ -55,7 +55,8 @@ pub fn fdk(
     )?;
     let kind = scan_kind(geometry);
     let mut p = projections.to_owned();
-    // Pre-weights: cosine (cone) and Parker (short scan).
+    // Pre-weights: cosine (cone; the same image for every view, as the principal point is) and
+    // Parker (short scan).
     if geometry.beam == Beam::Cone {
         let parker = if kind == ScanKind::Short {
             Some(Parker::new(geometry)?)
@@ -63,22 +64,34 @@ pub fn fdk(
             None
         };
         let dsd = geometry.dsd;
-        let plane = d.rows * d.cols;
+        let cam = geometry.camera(0);
+        let at = |c: usize, r: usize| {
+            (
+                (c as f64 - cam.cx) * d.pitch_u,
+                (r as f64 - cam.cy) * d.pitch_v,
+            )
+        };
+        let cosine: Vec<f32> = (0..d.rows * d.cols)
+            .map(|i| {
+                let (u, v) = at(i % d.cols, i / d.cols);
+                (dsd / (dsd * dsd + u * u + v * v).sqrt()) as f32
+            })
+            .collect();
         p.as_slice_mut()
             .expect("fresh array")
-            .par_chunks_mut(plane)
+            .par_chunks_mut(d.rows * d.cols)
             .enumerate()
-            .for_each(|(k, view)| {
-                let cam = geometry.camera(k);
-                for (i, x) in view.iter_mut().enumerate() {
-                    let (r, c) = (i / d.cols, i % d.cols);
-                    let u = (c as f64 - cam.cx) * d.pitch_u;
-                    let v = (r as f64 - cam.cy) * d.pitch_v;
-                    let mut w = dsd / (dsd * dsd + u * u + v * v).sqrt();
-                    if let Some(pk) = &parker {
-                        w *= pk.weight(k, u);
+            .for_each(|(k, view)| match &parker {
+                None => view.iter_mut().zip(&cosine).for_each(|(x, c)| *x *= c),
+                Some(pk) => {
+                    let w: Vec<f32> = (0..d.cols)
+                        .map(|c| pk.weight(k, at(c, 0).0) as f32)
+                        .collect();
+                    for (line, cos) in view.chunks_mut(d.cols).zip(cosine.chunks(d.cols)) {
+                        for ((x, c), w) in line.iter_mut().zip(cos).zip(&w) {
+                            *x *= c * w;
+                        }
                     }
-                    *x *= w as f32;
                 }
             });
     }
