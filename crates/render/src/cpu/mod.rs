@@ -5,6 +5,7 @@
 //! the backward pass writes per-(tile, Gaussian) partial sums into disjoint slices, then gathers
 //! them per Gaussian — there are no shared writes anywhere.
 
+mod lanes;
 mod project;
 mod tiles;
 mod voxelize;

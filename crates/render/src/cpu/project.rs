@@ -10,8 +10,11 @@
 
 use rayon::prelude::*;
 
+use super::GaussianSlices;
+#[cfg(target_arch = "x86_64")]
+use super::lanes::Avx2;
+use super::lanes::{LANES, Lanes, Portable};
 use super::tiles::{Bins, TileBox, tile_span};
-use super::{Fused, GaussianSlices, MulAdd, Separate, exp_neg_with};
 use crate::camera::Camera;
 use crate::gaussian_math::{
     self as gm, ExactSplat, GaussianGeom, SplatGrad, camera_ray, exact_splat, exact_splat_backward,
@@ -230,49 +233,64 @@ fn clip(s: &PixelSplat, r: (usize, usize, usize, usize)) -> Option<(usize, usize
     (x0 < x1 && y0 < y1).then_some((x0, x1, y0, y1))
 }
 
-/// One tile row of `s` at `dy = y − my` (pixels): `e[j] = G = exp(−½ dᵀ Σ₂D⁻¹ d)` at column
-/// `c0 + j` (`c0` the tile's first column), exactly 0 beyond the cut-off (`dᵀ Σ₂D⁻¹ d > cut²`)
-/// and outside the splat's clipped columns `[x0, x1)`; `None` if the row misses the cut-off
-/// ellipse. The row is evaluated across the full tile width with masks instead of a
-/// variable-length loop over its chord: no scalar remainder, no per-row square root or
-/// division, so the loop runs in full SIMD registers (2 × 8 lanes with AVX2).
+/// `γ dy²` of row `dy` (pixels from the centre), or `None` if the row misses the cut-off ellipse
+/// (`γ dy² ≥ cut²`, or NaN).
 #[inline(always)]
-fn affine_row<F: MulAdd>(
-    s: &PixelSplat,
-    c0: usize,
-    dy: f32,
-    cut2: f32,
-    x0: usize,
-    x1: usize,
-) -> Option<[f32; TILE]> {
+fn row_gdy(s: &PixelSplat, dy: f32, cut2: f32) -> Option<f32> {
     let gdy = s.gamma * dy * dy;
-    if (cut2 - gdy).partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-        return None;
-    }
-    // Lane range [ls, le) of the clipped columns, as floats for a conversion-free compare.
-    let (ls, le) = ((x0 - c0) as f32, (x1 - c0) as f32);
-    let dx0 = c0 as f32 - s.mx;
-    let bdy = s.beta * dy;
-    let mut e = [0.0f32; TILE];
-    // Evaluate only the 8-lane halves that hold clipped columns (one AVX2 register each).
-    for h in half_range(x0 - c0, x1 - c0) {
-        let lanes = h..h + HALF;
-        for (ej, &j) in e[lanes.clone()].iter_mut().zip(&IOTA[lanes]) {
-            let d = dx0 + j + bdy;
-            let q = F::mul_add(s.a * d, d, gdy);
-            let v = exp_neg_with::<F>(-0.5 * q);
-            *ej = if q <= cut2 && j >= ls && j < le {
-                v
+    ((cut2 - gdy).partial_cmp(&0.0) == Some(std::cmp::Ordering::Greater)).then_some(gdy)
+}
+
+/// The per-(splat, tile, column block) constants of [`SplatBlock::row`].
+#[derive(Clone, Copy)]
+struct SplatBlock<L> {
+    /// Column offsets `x − mx` of the block's lanes (pixels).
+    dx: L,
+    /// 1 on the splat's clipped columns, 0 elsewhere.
+    inside: L,
+    a: L,
+    cut: L,
+}
+
+impl<L: Lanes> SplatBlock<L> {
+    /// Block of tile lanes `h..h + HALF` of a tile starting at column `c0`, for a splat clipped
+    /// to tile lanes `[l0, l1)`.
+    #[inline(always)]
+    fn new(s: &PixelSplat, c0: usize, h: usize, (l0, l1): (usize, usize), cut2: f32) -> Self {
+        let inside: [f32; HALF] = std::array::from_fn(|j| {
+            if (l0..l1).contains(&(h + j)) {
+                1.0
             } else {
                 0.0
-            };
+            }
+        });
+        Self {
+            dx: L::splat(c0 as f32 - s.mx).add(L::load(block(&IOTA, h))),
+            inside: L::load(&inside),
+            a: L::splat(s.a),
+            cut: L::splat(cut2),
         }
     }
-    Some(e)
+
+    /// `G = exp(−½ dᵀ Σ₂D⁻¹ d)` on the block's lanes of row `dy = y − my` (pixels), exactly 0
+    /// beyond the cut-off (`dᵀ Σ₂D⁻¹ d > cut²`) and outside the clipped columns; `gdy` from
+    /// [`row_gdy`]. The quadratic form is `a (dx + β dy)² + γ dy²` (cancellation-free), and
+    /// every lane is evaluated with masks instead of a variable-length loop over the row's
+    /// chord: no scalar remainder, no per-row square root or division.
+    #[inline(always)]
+    fn row(&self, s: &PixelSplat, dy: f32, gdy: f32) -> L {
+        let d = self.dx.add(L::splat(s.beta * dy));
+        let q = self.a.mul(d).mul_add(d, L::splat(gdy));
+        q.mul(L::splat(-0.5))
+            .exp_neg()
+            .keep_le(q, self.cut)
+            .mul(self.inside)
+    }
 }
 
 /// Lanes per evaluation block of the row kernels: one AVX2 register of f32.
-const HALF: usize = TILE / 2;
+const HALF: usize = LANES;
+const _: () = assert!(TILE == 2 * HALF);
 
 /// First lanes of the `HALF`-lane blocks that hold tile columns `[l0, l1)` (`l1 ≤ TILE`).
 #[inline(always)]
@@ -304,8 +322,8 @@ fn has_avx2() -> bool {
 }
 
 /// Generates a dispatcher `$name` over one body compiled twice: for the build's baseline target
-/// with unfused multiply-adds (`F` = [`Separate`]) and with AVX2+FMA enabled and fused ones
-/// (`F` = [`Fused`]), chosen at run time by [`has_avx2`]. The variants differ in rounding only.
+/// with [`Portable`] lanes (unfused multiply-adds) and with AVX2+FMA enabled and [`Avx2`] lanes
+/// (fused ones), chosen at run time by [`has_avx2`]. The variants differ in rounding only.
 macro_rules! dispatched {
     ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
         $(#[$doc])*
@@ -313,19 +331,19 @@ macro_rules! dispatched {
         fn $name($($arg: $ty),*) {
             #[inline(always)]
             #[allow(clippy::too_many_arguments)]
-            fn body<F: MulAdd>($($arg: $ty),*) $body
+            fn body<L: Lanes>($($arg: $ty),*) $body
             #[cfg(target_arch = "x86_64")]
             #[target_feature(enable = "avx2,fma")]
             #[allow(clippy::too_many_arguments)]
             fn wide($($arg: $ty),*) {
-                body::<Fused>($($arg),*)
+                body::<Avx2>($($arg),*)
             }
             #[cfg(target_arch = "x86_64")]
             if has_avx2() {
                 // SAFETY: `has_avx2` verified that the CPU supports AVX2 and FMA.
                 return unsafe { wide($($arg),*) };
             }
-            body::<Separate>($($arg),*)
+            body::<Portable>($($arg),*)
         }
     };
 }
@@ -343,21 +361,22 @@ dispatched! {
         let Some((x0, x1, y0, y1)) = clip(s, r) else {
             return;
         };
-        let halves = half_range(x0 - r.0, x1 - r.0);
-        for y in y0..y1 {
-            let Some(e) = affine_row::<F>(s, r.0, y as f32 - s.my, cut2, x0, x1) else {
-                continue;
-            };
-            let p = (y - r.2) * TILE;
-            for (c, &w) in w.iter().enumerate() {
-                for h in halves.clone() {
-                    let o = c * TILE_PIXELS + p + h;
-                    let row: &mut [f32; HALF] =
-                        (&mut buf[o..o + HALF]).try_into().expect("HALF-wide block");
-                    for (b, &e) in row.iter_mut().zip(&e[h..h + HALF]) {
-                        // Select, not multiply: lanes outside the ellipse stay 0 even for w = ∞.
-                        *b += if e != 0.0 { w * e } else { 0.0 };
-                    }
+        let lanes = (x0 - r.0, x1 - r.0);
+        for h in half_range(lanes.0, lanes.1) {
+            let sb = SplatBlock::<L>::new(s, r.0, h, lanes, cut2);
+            for y in y0..y1 {
+                let dy = y as f32 - s.my;
+                let Some(gdy) = row_gdy(s, dy, cut2) else {
+                    continue;
+                };
+                let e = sb.row(s, dy, gdy);
+                let p = (y - r.2) * TILE + h;
+                for (c, &w) in w.iter().enumerate() {
+                    let o = c * TILE_PIXELS + p;
+                    let row = block_mut(buf, o);
+                    // Select, not multiply: lanes outside the ellipse stay 0 even for w = ∞.
+                    let add = L::splat(w).mul(e).keep_nonzero(e);
+                    L::load(row).add(add).store(row);
                 }
             }
         }
@@ -368,68 +387,62 @@ dispatched! {
     /// Backward partial sums of splat `s` over tile rect `r` into `acc`
     /// (`[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
     /// [`project_backward`]) from the tile's upstream gradient `gt` (`[M][tile pixels]`).
-    /// `lanes` and `mom` are scratch (any contents on entry).
+    /// `rows` is scratch (any contents on entry).
+    ///
+    /// Per 8-lane column block, two sweeps over the tile rows with register accumulators: the
+    /// first evaluates `G` once per pixel, keeps it in `rows` and sums the moments of `w G`
+    /// (`w = Σ_c ρ_c g_c`) per column; the second sums `S_c = Σ g_c G` per channel from the kept
+    /// `G`. A column's dx is fixed, so the dx moments follow at the reduction:
+    /// `Σ wG dx = Σ_col dx·(Σ_rows wG)`, and so on.
     fn splat_backward(
         s: &PixelSplat,
         r: (usize, usize, usize, usize),
         cut2: f32,
         gt: &[f32],
         dens: &[f32],
-        lanes: &mut [[f32; TILE]],
-        mom: &mut [[f32; TILE]; 3],
+        rows: &mut [[f32; HALF]; TILE],
         acc: &mut [f64],
     ) {
         let m = dens.len();
-        let dx0 = r.0 as f32 - s.mx;
-        // Per-lane (pixel column) partial sums, reduced once per pair, so the row loops are
-        // element-wise and vectorise: `lanes` = S_c per column, `mom` = Σ_rows wG, Σ_rows wG dy,
-        // Σ_rows wG dy² per column. A column's dx is fixed, so the dx moments follow at the
-        // reduction: Σ wG dx = Σ_col dx·(Σ_rows wG), and so on.
-        lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
-        *mom = [[0.0; TILE]; 3];
+        acc.fill(0.0);
         let Some((x0, x1, y0, y1)) = clip(s, r) else {
             return;
         };
-        let halves = half_range(x0 - r.0, x1 - r.0);
-        for y in y0..y1 {
-            let dy = y as f32 - s.my;
-            let Some(e) = affine_row::<F>(s, r.0, dy, cut2, x0, x1) else {
-                continue;
-            };
-            let p = (y - r.2) * TILE;
-            for h in halves.clone() {
-                let mut wge = [0.0f32; HALF];
-                for c in 0..m {
-                    let o = c * TILE_PIXELS + p + h;
-                    let gc: &[f32; HALF] =
-                        (&gt[o..o + HALF]).try_into().expect("HALF-wide block");
-                    let rho = dens[c];
-                    let lane = &mut lanes[c][h..h + HALF];
-                    for j in 0..HALF {
-                        // Select: a non-finite upstream gradient outside the ellipse gives 0.
-                        let ge = if e[h + j] != 0.0 { gc[j] * e[h + j] } else { 0.0 };
-                        lane[j] += ge;
-                        wge[j] += rho * ge;
-                    }
+        let lanes = (x0 - r.0, x1 - r.0);
+        for h in half_range(lanes.0, lanes.1) {
+            let sb = SplatBlock::<L>::new(s, r.0, h, lanes, cut2);
+            let (mut lw, mut ly, mut lyy) = (L::zero(), L::zero(), L::zero());
+            for y in y0..y1 {
+                let ty = y - r.2;
+                let dy = y as f32 - s.my;
+                let e = match row_gdy(s, dy, cut2) {
+                    Some(gdy) => sb.row(s, dy, gdy),
+                    None => L::zero(),
+                };
+                e.store(&mut rows[ty]);
+                let p = ty * TILE + h;
+                let mut u = L::zero();
+                for (c, &rho) in dens.iter().enumerate() {
+                    u = L::splat(rho).mul_add(L::load(block(gt, c * TILE_PIXELS + p)), u);
                 }
-                let [lw, ly, lyy] = &mut *mom;
-                for j in 0..HALF {
-                    let w = wge[j];
-                    let wy = w * dy;
-                    lw[h + j] += w;
-                    ly[h + j] += wy;
-                    lyy[h + j] += wy * dy;
-                }
+                // Select: a non-finite upstream gradient outside the ellipse gives 0.
+                let w = e.mul(u).keep_nonzero(e);
+                let wy = w.mul(L::splat(dy));
+                lw = lw.add(w);
+                ly = ly.add(wy);
+                lyy = wy.mul_add(L::splat(dy), lyy);
             }
-        }
-        // Reduce only the blocks that were accumulated (the others hold zeros).
-        acc[..m + 5].fill(0.0);
-        for h in halves {
             for c in 0..m {
-                acc[c] += sum_lanes(widen(&lanes[c][h..h + HALF]));
+                let mut sc = L::zero();
+                for y in y0..y1 {
+                    let e = L::load(&rows[y - r.2]);
+                    let g = L::load(block(gt, c * TILE_PIXELS + (y - r.2) * TILE + h));
+                    sc = sc.add(e.mul(g).keep_nonzero(e));
+                }
+                acc[c] += sum_lanes(widen(&sc.to_array()));
             }
-            let [lw, ly, lyy] = [0, 1, 2].map(|q| widen(&mom[q][h..h + HALF]));
-            let dx: [f64; HALF] = std::array::from_fn(|j| (dx0 + IOTA[h + j]) as f64);
+            let [lw, ly, lyy] = [lw, ly, lyy].map(|l| widen(&l.to_array()));
+            let dx = widen(&sb.dx.to_array());
             let x: [f64; HALF] = std::array::from_fn(|j| dx[j] * lw[j]);
             acc[m] += sum_lanes(x);
             acc[m + 1] += sum_lanes(ly);
@@ -438,6 +451,18 @@ dispatched! {
             acc[m + 4] += sum_lanes(lyy);
         }
     }
+}
+
+/// The `HALF`-lane block of `v` at offset `o`.
+#[inline(always)]
+fn block(v: &[f32], o: usize) -> &[f32; HALF] {
+    v[o..o + HALF].try_into().expect("HALF-wide block")
+}
+
+/// The mutable `HALF`-lane block of `v` at offset `o`.
+#[inline(always)]
+fn block_mut(v: &mut [f32], o: usize) -> &mut [f32; HALF] {
+    (&mut v[o..o + HALF]).try_into().expect("HALF-wide block")
 }
 
 /// The first `HALF` lanes of `v` as f64.
@@ -625,8 +650,7 @@ pub fn project_backward(
                     gt[o..o + tw].copy_from_slice(&gview[src..src + tw]);
                 }
             }
-            let mut lanes = vec![[0.0f32; TILE]; m];
-            let mut mom = [[0.0f32; TILE]; 3];
+            let mut rows = [[0.0f32; HALF]; TILE];
             // Gather the tile's affine splats first (see the forward pass).
             let local: Vec<Option<PixelSplat>> = match &prep {
                 Prepared::Affine(splats, _) => list.iter().map(|&gi| splats[gi as usize]).collect(),
@@ -639,7 +663,7 @@ pub fn project_backward(
                 match &prep {
                     Prepared::Affine(..) => {
                         let Some(s) = &local[j] else { continue };
-                        splat_backward(s, r, cut2 as f32, &gt, dens, &mut lanes, &mut mom, acc);
+                        splat_backward(s, r, cut2 as f32, &gt, dens, &mut rows, acc);
                     }
                     Prepared::Exact(splats) => {
                         let Some((s, px)) = &splats[gi] else { continue };
