@@ -57,6 +57,8 @@ struct PixelSplat {
     a: f32,
     beta: f32,
     gamma: f32,
+    /// Integration factor μ (length units), so a tile's pass reads one array per Gaussian.
+    mu: f32,
     /// Pixel box `[x0, x1) × [y0, y1)` clamped to the detector.
     x0: u32,
     x1: u32,
@@ -159,6 +161,7 @@ fn prepare(
                         a: s.conic.a as f32,
                         beta: s.conic.beta as f32,
                         gamma: s.conic.gamma as f32,
+                        mu: s.mu as f32,
                         x0: px[0] as u32,
                         x1: px[1] as u32,
                         y0: px[2] as u32,
@@ -404,6 +407,9 @@ dispatched! {
         acc: &mut [f64],
     ) {
         let m = dens.len();
+        // One channel: the first sweep sums the moments of g G instead (ρ factored out and
+        // applied after the reduction), whose zeroth moment is S_0 itself: no second sweep.
+        let single = m == 1;
         acc.fill(0.0);
         let Some((x0, x1, y0, y1)) = clip(s, r) else {
             return;
@@ -419,12 +425,17 @@ dispatched! {
                     Some(gdy) => sb.row(s, dy, gdy),
                     None => L::zero(),
                 };
-                e.store(&mut rows[ty]);
                 let p = ty * TILE + h;
-                let mut u = L::zero();
-                for (c, &rho) in dens.iter().enumerate() {
-                    u = L::splat(rho).mul_add(L::load(block(gt, c * TILE_PIXELS + p)), u);
-                }
+                let u = if single {
+                    L::load(block(gt, p))
+                } else {
+                    e.store(&mut rows[ty]);
+                    let mut u = L::zero();
+                    for (c, &rho) in dens.iter().enumerate() {
+                        u = L::splat(rho).mul_add(L::load(block(gt, c * TILE_PIXELS + p)), u);
+                    }
+                    u
+                };
                 // Select: a non-finite upstream gradient outside the ellipse gives 0.
                 let w = e.mul(u).keep_nonzero(e);
                 let wy = w.mul(L::splat(dy));
@@ -432,16 +443,20 @@ dispatched! {
                 ly = ly.add(wy);
                 lyy = wy.mul_add(L::splat(dy), lyy);
             }
-            for c in 0..m {
-                let mut sc = L::zero();
-                for y in y0..y1 {
-                    let e = L::load(&rows[y - r.2]);
-                    let g = L::load(block(gt, c * TILE_PIXELS + (y - r.2) * TILE + h));
-                    sc = sc.add(e.mul(g).keep_nonzero(e));
-                }
-                acc[c] += sum_lanes(widen(&sc.to_array()));
-            }
             let [lw, ly, lyy] = [lw, ly, lyy].map(|l| widen(&l.to_array()));
+            if single {
+                acc[0] += sum_lanes(lw);
+            } else {
+                for c in 0..m {
+                    let mut sc = L::zero();
+                    for y in y0..y1 {
+                        let e = L::load(&rows[y - r.2]);
+                        let g = L::load(block(gt, c * TILE_PIXELS + (y - r.2) * TILE + h));
+                        sc = sc.add(e.mul(g).keep_nonzero(e));
+                    }
+                    acc[c] += sum_lanes(widen(&sc.to_array()));
+                }
+            }
             let dx = widen(&sb.dx.to_array());
             let x: [f64; HALF] = std::array::from_fn(|j| dx[j] * lw[j]);
             acc[m] += sum_lanes(x);
@@ -449,6 +464,10 @@ dispatched! {
             acc[m + 2] += sum_lanes(std::array::from_fn(|j| dx[j] * x[j]));
             acc[m + 3] += sum_lanes(std::array::from_fn(|j| dx[j] * ly[j]));
             acc[m + 4] += sum_lanes(lyy);
+        }
+        if single {
+            let rho = dens[0] as f64;
+            acc[1..].iter_mut().for_each(|v| *v *= rho);
         }
     }
 }
@@ -535,7 +554,7 @@ pub fn project_forward(
                 let mut buf = vec![0.0f32; m * n];
                 let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
                 match &prep {
-                    Prepared::Affine(splats, mus) => {
+                    Prepared::Affine(splats, _) => {
                         let mut w = vec![0.0f32; m];
                         // Gather the tile's splats first: the cache misses of this tight loop
                         // overlap, unlike misses taken inside the pixel loops.
@@ -546,7 +565,7 @@ pub fn project_forward(
                         for &(gi, ref s) in &local {
                             let dens = &g.densities[m * gi..m * gi + m];
                             for c in 0..m {
-                                w[c] = (dens[c] as f64 * mus[gi].0) as f32;
+                                w[c] = dens[c] * s.mu;
                             }
                             splat_forward(s, r, cut2 as f32, &w, &mut buf);
                         }
@@ -696,84 +715,88 @@ pub fn project_backward(
                 }
             }
         });
-        // Gather per Gaussian and chain to its parameters.
-        type PerGaussian = ([f64; 10], Vec<f64>, [f64; 2]);
-        let results: Vec<Option<PerGaussian>> = (0..k)
-            .into_par_iter()
-            .map(|i| {
-                let isects =
-                    &bins.gaussian_isects[bins.gaussian_start[i]..bins.gaussian_start[i + 1]];
-                if isects.is_empty() {
-                    return None;
-                }
-                let mut sum = vec![0.0f64; stride];
-                for &slot in isects {
-                    for (a, b) in sum
-                        .iter_mut()
-                        .zip(&slots[slot * stride..(slot + 1) * stride])
-                    {
-                        *a += b;
+        // Gather per Gaussian and chain to its parameters, written straight into the outputs.
+        let screen_view = &mut total.screen[2 * v * k..2 * (v + 1) * k];
+        total
+            .means
+            .par_chunks_mut(3)
+            .zip(total.scales.par_chunks_mut(3))
+            .zip(total.rotations.par_chunks_mut(4))
+            .zip(total.densities.par_chunks_mut(m))
+            .zip(screen_view.par_chunks_mut(2))
+            .enumerate()
+            .with_min_len(64)
+            .for_each_init(
+                || vec![0.0f64; stride],
+                |sum, (i, ((((out_mean, out_scale), out_rot), out_dens), out_screen))| {
+                    let isects =
+                        &bins.gaussian_isects[bins.gaussian_start[i]..bins.gaussian_start[i + 1]];
+                    if isects.is_empty() {
+                        return;
                     }
-                }
-                let geom: GaussianGeom = g.geom(i);
-                let dens = &g.densities[m * i..m * i + m];
-                let off = screen_offset(screen, k, v, i);
-                let (geo, g_dens, g_screen) = match &prep {
-                    Prepared::Affine(_, mus) => {
-                        let (mu, [ca, cb, cc]) = mus[i];
-                        let g_mu: f64 = (0..m).map(|c| dens[c] as f64 * sum[c]).sum();
-                        let (wx, wy) = (sum[m], sum[m + 1]);
-                        let sg = SplatGrad {
-                            mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
-                            conic: [
-                                -0.5 * mu * sum[m + 2],
-                                -0.5 * mu * sum[m + 3],
-                                -0.5 * mu * sum[m + 4],
-                            ],
-                            mu: g_mu,
-                        };
-                        let geo = gm::splat_backward(&geom, cam, off, opts.cutoff, near, &sg);
-                        let g_dens: Vec<f64> = (0..m).map(|c| mu * sum[c]).collect();
-                        (geo, g_dens, sg.mean)
+                    sum.fill(0.0);
+                    for &slot in isects {
+                        for (a, b) in sum
+                            .iter_mut()
+                            .zip(&slots[slot * stride..(slot + 1) * stride])
+                        {
+                            *a += b;
+                        }
                     }
-                    Prepared::Exact(_) => {
-                        let g_centre = [sum[m], sum[m + 1], sum[m + 2]];
-                        let gp: [f64; 6] = std::array::from_fn(|q| sum[m + 3 + q]);
-                        let (geo, g_screen) =
-                            exact_splat_backward(&geom, cam, off, g_centre, &sym_unpack(&gp));
-                        (geo, sum[..m].to_vec(), g_screen)
+                    let geom: GaussianGeom = g.geom(i);
+                    let dens = &g.densities[m * i..m * i + m];
+                    let off = screen_offset(screen, k, v, i);
+                    // ∂L/∂ρ_c = dens_scale · S_c.
+                    let (geo, dens_scale, g_screen) = match &prep {
+                        Prepared::Affine(_, mus) => {
+                            let (mu, [ca, cb, cc]) = mus[i];
+                            let g_mu: f64 = (0..m).map(|c| dens[c] as f64 * sum[c]).sum();
+                            let (wx, wy) = (sum[m], sum[m + 1]);
+                            let sg = SplatGrad {
+                                mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
+                                conic: [
+                                    -0.5 * mu * sum[m + 2],
+                                    -0.5 * mu * sum[m + 3],
+                                    -0.5 * mu * sum[m + 4],
+                                ],
+                                mu: g_mu,
+                            };
+                            let geo = gm::splat_backward(&geom, cam, off, opts.cutoff, near, &sg);
+                            (geo, mu, sg.mean)
+                        }
+                        Prepared::Exact(_) => {
+                            let g_centre = [sum[m], sum[m + 1], sum[m + 2]];
+                            let gp: [f64; 6] = std::array::from_fn(|q| sum[m + 3 + q]);
+                            let (geo, g_screen) =
+                                exact_splat_backward(&geom, cam, off, g_centre, &sym_unpack(&gp));
+                            (geo, 1.0, g_screen)
+                        }
+                    };
+                    let finite = geo
+                        .mean
+                        .iter()
+                        .chain(&geo.scale)
+                        .chain(&geo.quat)
+                        .chain(&g_screen)
+                        .all(|x| x.is_finite())
+                        && sum[..m].iter().all(|x| (dens_scale * x).is_finite());
+                    if !finite {
+                        return;
                     }
-                };
-                let mut flat = [0.0f64; 10];
-                flat[..3].copy_from_slice(&geo.mean);
-                flat[3..6].copy_from_slice(&geo.scale);
-                flat[6..].copy_from_slice(&geo.quat);
-                let finite = flat
-                    .iter()
-                    .chain(&g_dens)
-                    .chain(&g_screen)
-                    .all(|x| x.is_finite());
-                finite.then_some((flat, g_dens, g_screen))
-            })
-            .collect();
-        for (i, r) in results.into_iter().enumerate() {
-            let Some((flat, g_dens, g_screen)) = r else {
-                continue;
-            };
-            for q in 0..3 {
-                total.means[3 * i + q] += flat[q] as f32;
-                total.scales[3 * i + q] += flat[3 + q] as f32;
-            }
-            for q in 0..4 {
-                total.rotations[4 * i + q] += flat[6 + q] as f32;
-            }
-            for c in 0..m {
-                total.densities[m * i + c] += g_dens[c] as f32;
-            }
-            let o = 2 * (v * k + i);
-            total.screen[o] = g_screen[0] as f32;
-            total.screen[o + 1] = g_screen[1] as f32;
-        }
+                    for q in 0..3 {
+                        out_mean[q] += geo.mean[q] as f32;
+                        out_scale[q] += geo.scale[q] as f32;
+                    }
+                    for q in 0..4 {
+                        out_rot[q] += geo.quat[q] as f32;
+                    }
+                    for c in 0..m {
+                        out_dens[c] += (dens_scale * sum[c]) as f32;
+                    }
+                    out_screen[0] = g_screen[0] as f32;
+                    out_screen[1] = g_screen[1] as f32;
+                },
+            );
     }
     total
 }

@@ -430,6 +430,13 @@ fn projection_gradients_match_central_differences() {
             check_project_gradients(&p, &cams, &opts, 5);
         }
     }
+    // One channel takes its own path in the affine pixel kernel (ρ factored out of the sums).
+    let p = Params::random(3, 1, 6.0, (1.5, 4.0), 12);
+    let opts = ProjectOptions {
+        cutoff: 8.0,
+        ..Default::default()
+    };
+    check_project_gradients(&p, &[cone(0.4, 20, 18, 1.2)], &opts, 6);
 }
 
 #[test]
