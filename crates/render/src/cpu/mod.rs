@@ -10,7 +10,10 @@ mod project;
 mod tiles;
 mod voxelize;
 
-pub use project::{ProjectGrads, count_project_evaluations, project_backward, project_forward};
+pub use project::{
+    PREPARED_WIDTH, ProjectGrads, count_project_evaluations, project_backward,
+    project_backward_prepared, project_forward, project_forward_prepared, project_prepare,
+};
 pub use tiles::{Bins, TileBox, tile_span};
 pub use voxelize::{VoxelizeGrads, voxelize_backward, voxelize_forward};
 

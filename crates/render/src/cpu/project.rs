@@ -66,6 +66,60 @@ struct PixelSplat {
     y1: u32,
 }
 
+/// Width of one Gaussian's record in a prepared-state buffer (see [`project_prepare`]).
+pub const PREPARED_WIDTH: usize = 10;
+
+impl PixelSplat {
+    /// `[mx, my, a, β, γ, μ, x0, x1, y0, y1]`; a culled Gaussian is all zeros (an empty box).
+    /// Box bounds are below 2²⁰ (the detector limit), so exact in f32.
+    fn pack(s: Option<&PixelSplat>) -> [f32; PREPARED_WIDTH] {
+        s.map_or([0.0; PREPARED_WIDTH], |s| {
+            [
+                s.mx,
+                s.my,
+                s.a,
+                s.beta,
+                s.gamma,
+                s.mu,
+                s.x0 as f32,
+                s.x1 as f32,
+                s.y0 as f32,
+                s.y1 as f32,
+            ]
+        })
+    }
+
+    /// Inverse of [`PixelSplat::pack`], with the box clamped to `det` (so a record made for
+    /// another detector cannot index outside this one) and its tile box; `None` if culled.
+    fn unpack(v: &[f32], det: &Detector) -> Option<(PixelSplat, TileBox)> {
+        // `as` saturates (NaN → 0), so the clamped box is always a valid index range.
+        let x0 = v[6] as usize;
+        let x1 = (v[7] as usize).min(det.cols);
+        let y0 = v[8] as usize;
+        let y1 = (v[9] as usize).min(det.rows);
+        if x0 >= x1 || y0 >= y1 {
+            return None;
+        }
+        let s = PixelSplat {
+            mx: v[0],
+            my: v[1],
+            a: v[2],
+            beta: v[3],
+            gamma: v[4],
+            mu: v[5],
+            x0: x0 as u32,
+            x1: x1 as u32,
+            y0: y0 as u32,
+            y1: y1 as u32,
+        };
+        let tb = TileBox {
+            lo: [x0 / TILE, y0 / TILE, 0],
+            hi: [(x1 - 1) / TILE + 1, (y1 - 1) / TILE + 1, 1],
+        };
+        Some((s, tb))
+    }
+}
+
 struct Detector {
     rows: usize,
     cols: usize,
@@ -111,8 +165,8 @@ impl Detector {
 
 /// Per-view preparation of every Gaussian.
 enum Prepared {
-    /// Pixel splats, and per Gaussian its μ and `Σ₂D⁻¹` as `[a, b, c]` (f64, for the backward).
-    Affine(Vec<Option<PixelSplat>>, Vec<(f64, [f64; 3])>),
+    /// Pixel splats (the chain rule recomputes the f64 splat it needs).
+    Affine(Vec<Option<PixelSplat>>),
     Exact(Vec<Option<(ExactSplat, [usize; 4])>>),
 }
 
@@ -123,9 +177,79 @@ fn screen_offset(screen: &[f32], k: usize, view: usize, i: usize) -> [f64; 2] {
 
 type ExactPrepared = (Option<(ExactSplat, [usize; 4])>, Option<TileBox>);
 
+/// The affine pixel splat (f32) and tile box of Gaussian `i` in `view`, or `None` if it is
+/// culled (non-finite density, degenerate, behind the near plane, off the detector).
+fn affine_splat(
+    g: &GaussianSlices,
+    screen: &[f32],
+    view: usize,
+    i: usize,
+    cam: &Camera,
+    det: &Detector,
+    opts: &ProjectOptions,
+) -> Option<(PixelSplat, TileBox)> {
+    g.densities_of(i)?;
+    let off = screen_offset(screen, g.len(), view, i);
+    let near = opts.near_fraction * cam.sdd;
+    let s = gm::splat(&g.geom(i), cam, off, opts.cutoff, near)?;
+    let bb = [
+        s.mean[0] - s.half_extent[0],
+        s.mean[0] + s.half_extent[0],
+        s.mean[1] - s.half_extent[1],
+        s.mean[1] + s.half_extent[1],
+    ];
+    let (px, tb) = det.boxes(bb)?;
+    let ps = PixelSplat {
+        mx: s.mean[0] as f32,
+        my: s.mean[1] as f32,
+        a: s.conic.a as f32,
+        beta: s.conic.beta as f32,
+        gamma: s.conic.gamma as f32,
+        mu: s.mu as f32,
+        x0: px[0] as u32,
+        x1: px[1] as u32,
+        y0: px[2] as u32,
+        y1: px[3] as u32,
+    };
+    (ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite()).then_some((ps, tb))
+}
+
+/// Prepared state of every view and Gaussian, `[V, K, PREPARED_WIDTH]` (f32): the affine pixel
+/// splats ([`PixelSplat::pack`]) that [`project_forward_prepared`] and
+/// [`project_backward_prepared`] read instead of recomputing them, so one forward and its
+/// backward prepare every Gaussian once. Exact mode keeps its f64 preparation internal (f32
+/// would lose the per-ray accuracy it exists for): its prepared state is zeros, ignored.
+pub fn project_prepare(
+    g: &GaussianSlices,
+    screen: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
+    let k = g.len();
+    let mut out = vec![0.0f32; cams.len() * k * PREPARED_WIDTH];
+    if opts.mode == ProjectionMode::Exact || k == 0 {
+        return out;
+    }
+    for (v, cam) in cams.iter().enumerate() {
+        let det = Detector::new(cam);
+        out[v * k * PREPARED_WIDTH..(v + 1) * k * PREPARED_WIDTH]
+            .par_chunks_mut(PREPARED_WIDTH)
+            .enumerate()
+            .with_min_len(64)
+            .for_each(|(i, rec)| {
+                let s = affine_splat(g, screen, v, i, cam, &det, opts);
+                rec.copy_from_slice(&PixelSplat::pack(s.as_ref().map(|(s, _)| s)));
+            });
+    }
+    out
+}
+
+/// The preparation of `view`: unpacked from `prepared` (affine, see [`project_prepare`]) or
+/// computed (exact, or affine without a prepared state); with every Gaussian's tile box.
 fn prepare(
     g: &GaussianSlices,
     screen: &[f32],
+    prepared: Option<&[f32]>,
     view: usize,
     cam: &Camera,
     opts: &ProjectOptions,
@@ -134,56 +258,23 @@ fn prepare(
     let det = Detector::new(cam);
     match opts.mode {
         ProjectionMode::Affine => {
-            let near = opts.near_fraction * cam.sdd;
-            type Item = (Option<PixelSplat>, (f64, [f64; 3]), Option<TileBox>);
-            let items: Vec<Item> = (0..k)
-                .into_par_iter()
-                .map(|i| {
-                    if g.densities_of(i).is_none() {
-                        return (None, (0.0, [0.0; 3]), None);
-                    }
-                    let off = screen_offset(screen, k, view, i);
-                    let Some(s) = gm::splat(&g.geom(i), cam, off, opts.cutoff, near) else {
-                        return (None, (0.0, [0.0; 3]), None);
-                    };
-                    let bb = [
-                        s.mean[0] - s.half_extent[0],
-                        s.mean[0] + s.half_extent[0],
-                        s.mean[1] - s.half_extent[1],
-                        s.mean[1] + s.half_extent[1],
-                    ];
-                    let Some((px, tb)) = det.boxes(bb) else {
-                        return (None, (0.0, [0.0; 3]), None);
-                    };
-                    let ps = PixelSplat {
-                        mx: s.mean[0] as f32,
-                        my: s.mean[1] as f32,
-                        a: s.conic.a as f32,
-                        beta: s.conic.beta as f32,
-                        gamma: s.conic.gamma as f32,
-                        mu: s.mu as f32,
-                        x0: px[0] as u32,
-                        x1: px[1] as u32,
-                        y0: px[2] as u32,
-                        y1: px[3] as u32,
-                    };
-                    let ok = ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite();
-                    if ok {
-                        (Some(ps), (s.mu, s.conic_mat), Some(tb))
-                    } else {
-                        (None, (0.0, [0.0; 3]), None)
-                    }
-                })
-                .collect();
-            let mut splats = Vec::with_capacity(k);
-            let mut mus = Vec::with_capacity(k);
-            let mut boxes = Vec::with_capacity(k);
-            for (s, mu, b) in items {
-                splats.push(s);
-                mus.push(mu);
-                boxes.push(b);
-            }
-            (Prepared::Affine(splats, mus), boxes)
+            let items: Vec<Option<(PixelSplat, TileBox)>> = match prepared {
+                Some(p) => p[view * k * PREPARED_WIDTH..(view + 1) * k * PREPARED_WIDTH]
+                    .par_chunks(PREPARED_WIDTH)
+                    .with_min_len(256)
+                    .map(|rec| PixelSplat::unpack(rec, &det))
+                    .collect(),
+                None => (0..k)
+                    .into_par_iter()
+                    .with_min_len(64)
+                    .map(|i| affine_splat(g, screen, view, i, cam, &det, opts))
+                    .collect(),
+            };
+            let (splats, boxes) = items
+                .into_iter()
+                .map(|it| it.map_or((None, None), |(s, b)| (Some(s), Some(b))))
+                .unzip();
+            (Prepared::Affine(splats), boxes)
         }
         ProjectionMode::Exact => {
             let items: Vec<ExactPrepared> = (0..k)
@@ -532,6 +623,34 @@ pub fn project_forward(
     cams: &[Camera],
     opts: &ProjectOptions,
 ) -> Vec<f32> {
+    forward(g, screen, None, cams, opts)
+}
+
+/// [`project_forward`] reading the per-Gaussian preparation from `prepared` (made by
+/// [`project_prepare`] from the same inputs). A buffer of the wrong length is ignored (the
+/// preparation is then recomputed); boxes are clamped to the detector.
+pub fn project_forward_prepared(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
+    forward(g, screen, fitting(prepared, g, cams), cams, opts)
+}
+
+/// `prepared` if it has the length [`project_prepare`] gives for `g` and `cams`.
+fn fitting<'a>(prepared: &'a [f32], g: &GaussianSlices, cams: &[Camera]) -> Option<&'a [f32]> {
+    (prepared.len() == cams.len() * g.len() * PREPARED_WIDTH).then_some(prepared)
+}
+
+fn forward(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: Option<&[f32]>,
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
     let m = g.channels;
     let Some(first) = cams.first() else {
         return Vec::new();
@@ -544,7 +663,7 @@ pub fn project_forward(
     let cut2 = opts.cutoff * opts.cutoff;
     for (v, cam) in cams.iter().enumerate() {
         let det = Detector::new(cam);
-        let (prep, boxes) = prepare(g, screen, v, cam, opts);
+        let (prep, boxes) = prepare(g, screen, prepared, v, cam, opts);
         let bins = Bins::new([det.tiles_x, det.tiles_y, 1], &boxes);
         let tiles: Vec<Vec<f32>> = (0..bins.tiles())
             .into_par_iter()
@@ -554,7 +673,7 @@ pub fn project_forward(
                 let mut buf = vec![0.0f32; m * n];
                 let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
                 match &prep {
-                    Prepared::Affine(splats, _) => {
+                    Prepared::Affine(splats) => {
                         let mut w = vec![0.0f32; m];
                         // Gather the tile's splats first: the cache misses of this tight loop
                         // overlap, unlike misses taken inside the pixel loops.
@@ -624,6 +743,30 @@ pub fn project_backward(
     opts: &ProjectOptions,
     grad: &[f32],
 ) -> ProjectGrads {
+    backward(g, screen, None, cams, opts, grad)
+}
+
+/// [`project_backward`] reading the per-Gaussian preparation from `prepared` (see
+/// [`project_forward_prepared`]).
+pub fn project_backward_prepared(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+    grad: &[f32],
+) -> ProjectGrads {
+    backward(g, screen, fitting(prepared, g, cams), cams, opts, grad)
+}
+
+fn backward(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: Option<&[f32]>,
+    cams: &[Camera],
+    opts: &ProjectOptions,
+    grad: &[f32],
+) -> ProjectGrads {
     let k = g.len();
     let m = g.channels;
     let mut total = ProjectGrads {
@@ -645,7 +788,7 @@ pub fn project_backward(
         let det = Detector::new(cam);
         let near = opts.near_fraction * cam.sdd;
         let gview = &grad[v * m * plane..(v + 1) * m * plane];
-        let (prep, boxes) = prepare(g, screen, v, cam, opts);
+        let (prep, boxes) = prepare(g, screen, prepared, v, cam, opts);
         let bins = Bins::new([det.tiles_x, det.tiles_y, 1], &boxes);
         // Per-slot partial sums. Affine: [S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy,
         // Σ wG dy²] with S_c = Σ g_c G and w = Σ_c ρ_c g_c. Exact: [S_c.., g_centre(3), g_prec(6)].
@@ -672,7 +815,7 @@ pub fn project_backward(
             let mut rows = [[0.0f32; HALF]; TILE];
             // Gather the tile's affine splats first (see the forward pass).
             let local: Vec<Option<PixelSplat>> = match &prep {
-                Prepared::Affine(splats, _) => list.iter().map(|&gi| splats[gi as usize]).collect(),
+                Prepared::Affine(splats) => list.iter().map(|&gi| splats[gi as usize]).collect(),
                 Prepared::Exact(_) => Vec::new(),
             };
             for (j, &gi) in list.iter().enumerate() {
@@ -748,20 +891,33 @@ pub fn project_backward(
                     let off = screen_offset(screen, k, v, i);
                     // ∂L/∂ρ_c = dens_scale · S_c.
                     let (geo, dens_scale, g_screen) = match &prep {
-                        Prepared::Affine(_, mus) => {
-                            let (mu, [ca, cb, cc]) = mus[i];
-                            let g_mu: f64 = (0..m).map(|c| dens[c] as f64 * sum[c]).sum();
-                            let (wx, wy) = (sum[m], sum[m + 1]);
-                            let sg = SplatGrad {
-                                mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
-                                conic: [
-                                    -0.5 * mu * sum[m + 2],
-                                    -0.5 * mu * sum[m + 3],
-                                    -0.5 * mu * sum[m + 4],
-                                ],
-                                mu: g_mu,
+                        Prepared::Affine(_) => {
+                            let mut mu = 0.0;
+                            let image_grad = |sp: &gm::Splat| {
+                                mu = sp.mu;
+                                let [ca, cb, cc] = sp.conic_mat;
+                                let mu = sp.mu;
+                                let (wx, wy) = (sum[m], sum[m + 1]);
+                                SplatGrad {
+                                    mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
+                                    conic: [
+                                        -0.5 * mu * sum[m + 2],
+                                        -0.5 * mu * sum[m + 3],
+                                        -0.5 * mu * sum[m + 4],
+                                    ],
+                                    mu: (0..m).map(|c| dens[c] as f64 * sum[c]).sum(),
+                                }
                             };
-                            let geo = gm::splat_backward(&geom, cam, off, opts.cutoff, near, &sg);
+                            let Some((geo, sg)) = gm::splat_backward_with(
+                                &geom,
+                                cam,
+                                off,
+                                opts.cutoff,
+                                near,
+                                image_grad,
+                            ) else {
+                                return;
+                            };
                             (geo, mu, sg.mean)
                         }
                         Prepared::Exact(_) => {
@@ -812,9 +968,9 @@ pub fn count_project_evaluations(
     let screen = vec![0.0f32; 2 * g.len() * cams.len()];
     let mut total = 0;
     for (v, cam) in cams.iter().enumerate() {
-        let (prep, _) = prepare(g, &screen, v, cam, opts);
+        let (prep, _) = prepare(g, &screen, None, v, cam, opts);
         total += match prep {
-            Prepared::Affine(splats, _) => {
+            Prepared::Affine(splats) => {
                 let cut2 = (opts.cutoff * opts.cutoff) as f32;
                 let spans = |s: &PixelSplat| -> usize {
                     (s.y0..s.y1)

@@ -281,6 +281,50 @@ fn simd_dispatch_matches_baseline() {
 }
 
 #[test]
+fn prepared_state_reproduces_the_recomputed_passes() {
+    // The prepared records are the f32 pixel splats themselves (boxes exact below 2²⁰), and the
+    // chain rule recomputes its f64 splat either way: results are bit-identical. A buffer of
+    // the wrong length is ignored; one made for a larger detector is clamped, never indexed
+    // out of range.
+    let k = 50;
+    let p = Params::random(k, 2, 20.0, (0.5, 4.0), 17);
+    let cams = [cone(0.3, 40, 37, 0.9), cone(1.9, 40, 37, 0.9)];
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let screen: Vec<f32> = (0..2 * k * 2)
+        .map(|_| rng.random_range(-0.5..0.5))
+        .collect();
+    let grad: Vec<f32> = (0..2 * 2 * 40 * 37)
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let opts = ProjectOptions::default();
+    let g = p.slices();
+    let prepared = project_prepare(&g, &screen, &cams, &opts);
+    assert_eq!(prepared.len(), 2 * k * PREPARED_WIDTH);
+    assert!(prepared.iter().any(|&v| v != 0.0));
+    let img = project_forward(&g, &screen, &cams, &opts);
+    let grads = project_backward(&g, &screen, &cams, &opts, &grad);
+    assert!(img.iter().any(|&v| v != 0.0));
+    assert_eq!(
+        project_forward_prepared(&g, &screen, &prepared, &cams, &opts),
+        img
+    );
+    assert_eq!(
+        project_backward_prepared(&g, &screen, &prepared, &cams, &opts, &grad),
+        grads
+    );
+    let short = &prepared[..prepared.len() - 1];
+    assert_eq!(
+        project_forward_prepared(&g, &screen, short, &cams, &opts),
+        img
+    );
+    let big = [cone(0.3, 90, 80, 0.9), cone(1.9, 90, 80, 0.9)];
+    let foreign = project_prepare(&g, &screen, &big, &opts);
+    let img2 = project_forward_prepared(&g, &screen, &foreign, &cams, &opts);
+    assert_eq!(img2.len(), img.len());
+    assert!(img2.iter().all(|v| v.is_finite()));
+}
+
+#[test]
 fn affine_versus_exact_drift() {
     // TIGRE-like geometry (DSO 1000, DSD 1536, 1 mm voxels), an anisotropic Gaussian 60–80 mm off
     // the axis; generous cut-off so both modes keep their full tails. The affine model's error
