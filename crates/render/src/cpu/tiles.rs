@@ -40,18 +40,8 @@ impl Bins {
         let mut gaussian_start = Vec::with_capacity(boxes.len() + 1);
         gaussian_start.push(0);
         let mut total = 0usize;
-        let each_tile = |b: &TileBox, f: &mut dyn FnMut(usize)| {
-            for z in b.lo[2]..b.hi[2] {
-                for y in b.lo[1]..b.hi[1] {
-                    let row = (z * tiles[1] + y) * tiles[0];
-                    for x in b.lo[0]..b.hi[0] {
-                        f(row + x);
-                    }
-                }
-            }
-        };
         for b in boxes.iter().flatten() {
-            each_tile(b, &mut |t| tile_count[t + 1] += 1);
+            each_tile(tiles, b, |t| tile_count[t + 1] += 1);
         }
         for b in boxes {
             total += b.map_or(0, |b| b.count());
@@ -67,7 +57,7 @@ impl Bins {
         let mut k = 0usize;
         for (g, b) in boxes.iter().enumerate() {
             if let Some(b) = b {
-                each_tile(b, &mut |t| {
+                each_tile(tiles, b, |t| {
                     let slot = cursor[t];
                     cursor[t] += 1;
                     tile_gaussians[slot] = g as u32;
@@ -103,6 +93,19 @@ impl Bins {
             buf = tail;
         }
         out
+    }
+}
+
+/// Call `f(tile index)` for every tile of `b` in a `tiles = [tx, ty, tz]` grid (x fastest).
+#[inline(always)]
+fn each_tile(tiles: [usize; 3], b: &TileBox, mut f: impl FnMut(usize)) {
+    for z in b.lo[2]..b.hi[2] {
+        for y in b.lo[1]..b.hi[1] {
+            let row = (z * tiles[1] + y) * tiles[0];
+            for x in b.lo[0]..b.hi[0] {
+                f(row + x);
+            }
+        }
     }
 }
 
