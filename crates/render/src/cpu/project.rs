@@ -4,9 +4,15 @@
 //! binned into 16×16 tiles; the prepared geometry is shared by all M density channels. A pixel
 //! receives a Gaussian iff it lies within the Mahalanobis cut-off (affine: of the 2D footprint;
 //! exact: of the ray's closest approach) — a relative criterion, unlike upstream's absolute
-//! `ρμG < 1e-5` skip, so densities of 1e-8 still render. The affine backward recomputes the
-//! preparation, accumulates per-(tile, Gaussian) image-space sums and chains them per Gaussian
-//! through [`gm::splat_backward`]; the exact backward accumulates per-pixel `∂/∂(centre, Σ⁻¹)`.
+//! `ρμG < 1e-5` skip, so densities of 1e-8 still render.
+//!
+//! The affine preparation (f32 pixel splats, [`project_prepare`]) can be computed once and read
+//! by both passes ([`project_forward_prepared`], [`project_backward_prepared`]); the Burn ops do
+//! so. The affine backward evaluates `G` once per (pixel, Gaussian) in 8-lane blocks
+//! ([`super::lanes`], AVX2+FMA when the CPU has it), accumulates per-(tile, Gaussian)
+//! image-space sums in registers, writes them once, and chains them per Gaussian through
+//! [`gm::splat_backward_with`] (one f64 splat per Gaussian); the exact backward accumulates
+//! per-pixel `∂/∂(centre, Σ⁻¹)`.
 
 use rayon::prelude::*;
 
