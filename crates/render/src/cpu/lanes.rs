@@ -28,6 +28,23 @@ pub(crate) trait Lanes: Copy {
     /// [`super::exp_neg`] of every lane (same polynomial, this type's `mul_add`).
     fn exp_neg(self) -> Self;
 
+    /// `[Σ a, Σ dx·a, Σ dx²·a, Σ b, Σ dx·b, Σ c]` over the lanes in f64: every lane widened,
+    /// products in f64, sums pairwise (lanes `j` and `j + 4`, then `j + 2`, then `j + 1`).
+    #[inline(always)]
+    fn moments(dx: Self, a: Self, b: Self, c: Self) -> [f64; 6] {
+        let [dx, a, b, c] = [dx, a, b, c].map(|v| v.to_array().map(|x| x as f64));
+        let x: [f64; LANES] = std::array::from_fn(|j| dx[j] * a[j]);
+        let xx: [f64; LANES] = std::array::from_fn(|j| dx[j] * x[j]);
+        let xb: [f64; LANES] = std::array::from_fn(|j| dx[j] * b[j]);
+        [a, x, xx, b, xb, c].map(sum_pairwise)
+    }
+
+    /// `Σ self` over the lanes in f64 (widened, summed as in [`Lanes::moments`]).
+    #[inline(always)]
+    fn sum(self) -> f64 {
+        sum_pairwise(self.to_array().map(|x| x as f64))
+    }
+
     #[inline(always)]
     fn zero() -> Self {
         Self::splat(0.0)
@@ -39,6 +56,21 @@ pub(crate) trait Lanes: Copy {
         self.store(&mut a);
         a
     }
+}
+
+/// Sum of 8 f64 by halving (`a[j] += a[j + w]` for w = 4, 2, 1): independent adds that
+/// vectorise, and the order the AVX2 reductions use.
+#[inline(always)]
+fn sum_pairwise(v: [f64; LANES]) -> f64 {
+    let mut a = v;
+    let mut w = LANES / 2;
+    while w > 0 {
+        for j in 0..w {
+            a[j] += a[j + w];
+        }
+        w /= 2;
+    }
+    a[0]
 }
 
 /// Plain-array lanes for the baseline build.
@@ -106,6 +138,29 @@ mod avx2 {
 
     use super::{LANES, Lanes};
 
+    /// Lanes 0–3 and 4–7 of `v` as f64.
+    #[inline(always)]
+    fn widen(v: __m256) -> (__m256d, __m256d) {
+        // SAFETY: AVX is available (type invariant).
+        unsafe {
+            (
+                _mm256_cvtps_pd(_mm256_castps256_ps128(v)),
+                _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(v)),
+            )
+        }
+    }
+
+    /// `Σ (lo + hi)` in the pairwise order of `sum_pairwise`.
+    #[inline(always)]
+    fn sum(lo: __m256d, hi: __m256d) -> f64 {
+        // SAFETY: AVX is available (type invariant).
+        unsafe {
+            let s4 = _mm256_add_pd(lo, hi);
+            let s2 = _mm_add_pd(_mm256_castpd256_pd128(s4), _mm256_extractf128_pd::<1>(s4));
+            _mm_cvtsd_f64(_mm_add_sd(s2, _mm_unpackhi_pd(s2, s2)))
+        }
+    }
+
     /// One AVX2 register of f32 lanes, with fused multiply-adds.
     ///
     /// Invariant (crate-private type): values of this type are only created inside functions
@@ -162,6 +217,33 @@ mod avx2 {
                 )
             })
         }
+        #[inline(always)]
+        fn moments(dx: Self, a: Self, b: Self, c: Self) -> [f64; 6] {
+            let (dl, dh) = widen(dx.0);
+            let (al, ah) = widen(a.0);
+            let (bl, bh) = widen(b.0);
+            let (cl, ch) = widen(c.0);
+            // SAFETY: AVX is available (type invariant). Plain multiplies (no FMA), as in the
+            // portable reduction.
+            unsafe {
+                let (xl, xh) = (_mm256_mul_pd(dl, al), _mm256_mul_pd(dh, ah));
+                [
+                    sum(al, ah),
+                    sum(xl, xh),
+                    sum(_mm256_mul_pd(dl, xl), _mm256_mul_pd(dh, xh)),
+                    sum(bl, bh),
+                    sum(_mm256_mul_pd(dl, bl), _mm256_mul_pd(dh, bh)),
+                    sum(cl, ch),
+                ]
+            }
+        }
+
+        #[inline(always)]
+        fn sum(self) -> f64 {
+            let (lo, hi) = widen(self.0);
+            sum(lo, hi)
+        }
+
         #[inline(always)]
         fn exp_neg(self) -> Self {
             // The algorithm of `exp_neg_with::<Fused>`, lane-wise.
@@ -243,6 +325,11 @@ mod tests {
         let le = x.keep_le(x, y).to_array();
         let nz = y.keep_nonzero(x).to_array();
         let fma = x.mul_add(y, L::splat(1.0)).to_array();
+        // The reductions: exact on small integers, whatever the order.
+        let ints: [f32; LANES] = std::array::from_fn(|j| j as f32 - 3.0);
+        let (i, one) = (L::load(&ints), L::splat(1.0));
+        assert_eq!(i.sum(), 4.0);
+        assert_eq!(L::moments(i, one, i, one), [8.0, 4.0, 44.0, 4.0, 44.0, 8.0]);
         for j in 0..LANES {
             // The lanes evaluate the scalar algorithm with the same roundings: bit-identical.
             assert!(

@@ -540,9 +540,9 @@ dispatched! {
                 ly = ly.add(wy);
                 lyy = wy.mul_add(L::splat(dy), lyy);
             }
-            let [lw, ly, lyy] = [lw, ly, lyy].map(|l| widen(&l.to_array()));
+            let [s0, wx, wxx, wy, wxy, wyy] = L::moments(sb.dx, lw, ly, lyy);
             if single {
-                acc[0] += sum_lanes(lw);
+                acc[0] += s0;
             } else {
                 for c in 0..m {
                     let mut sc = L::zero();
@@ -551,16 +551,14 @@ dispatched! {
                         let g = L::load(block(gt, c * TILE_PIXELS + (y - r.2) * TILE + h));
                         sc = sc.add(e.mul(g).keep_nonzero(e));
                     }
-                    acc[c] += sum_lanes(widen(&sc.to_array()));
+                    acc[c] += sc.sum();
                 }
             }
-            let dx = widen(&sb.dx.to_array());
-            let x: [f64; HALF] = std::array::from_fn(|j| dx[j] * lw[j]);
-            acc[m] += sum_lanes(x);
-            acc[m + 1] += sum_lanes(ly);
-            acc[m + 2] += sum_lanes(std::array::from_fn(|j| dx[j] * x[j]));
-            acc[m + 3] += sum_lanes(std::array::from_fn(|j| dx[j] * ly[j]));
-            acc[m + 4] += sum_lanes(lyy);
+            acc[m] += wx;
+            acc[m + 1] += wy;
+            acc[m + 2] += wxx;
+            acc[m + 3] += wxy;
+            acc[m + 4] += wyy;
         }
         if single {
             let rho = dens[0] as f64;
@@ -579,27 +577,6 @@ fn block(v: &[f32], o: usize) -> &[f32; HALF] {
 #[inline(always)]
 fn block_mut(v: &mut [f32], o: usize) -> &mut [f32; HALF] {
     (&mut v[o..o + HALF]).try_into().expect("HALF-wide block")
-}
-
-/// The first `HALF` lanes of `v` as f64.
-#[inline(always)]
-fn widen(v: &[f32]) -> [f64; HALF] {
-    std::array::from_fn(|j| v[j] as f64)
-}
-
-/// Sum of `HALF` lanes, pairwise (halving element-wise): independent adds that vectorise,
-/// instead of a serial chain of dependent adds per partial sum.
-#[inline(always)]
-fn sum_lanes(v: [f64; HALF]) -> f64 {
-    let mut a = v;
-    let mut w = HALF / 2;
-    while w > 0 {
-        for j in 0..w {
-            a[j] += a[j + w];
-        }
-        w /= 2;
-    }
-    a[0]
 }
 
 /// Visit the pixels of an exact splat inside tile rect `r`: `f(local_index, col, row)`.
