@@ -251,15 +251,6 @@ mod avx2 {
             const LN2_HI: f32 = 0.693_145_75;
             const LN2_LO: f32 = 1.428_606_8e-6;
             const MAGIC: f32 = 12_582_912.0;
-            const C: [f32; 7] = [
-                1.0 / 720.0,
-                1.0 / 120.0,
-                1.0 / 24.0,
-                1.0 / 6.0,
-                0.5,
-                1.0,
-                1.0,
-            ];
             // SAFETY: AVX2 and FMA are available (type invariant).
             unsafe {
                 // max/min return their second operand when either is NaN: NaN propagates.
@@ -273,10 +264,20 @@ mod avx2 {
                 let ni = _mm256_sub_epi32(_mm256_castps_si256(t), _mm256_castps_si256(magic));
                 let y = _mm256_fnmadd_ps(n, _mm256_set1_ps(LN2_HI), x);
                 let y = _mm256_fnmadd_ps(n, _mm256_set1_ps(LN2_LO), y);
-                let mut p = _mm256_set1_ps(C[0]);
-                for c in &C[1..] {
-                    p = _mm256_fmadd_ps(p, y, _mm256_set1_ps(*c));
-                }
+                let c = |v: f32| _mm256_set1_ps(v);
+                let y2 = _mm256_mul_ps(y, y);
+                let y4 = _mm256_mul_ps(y2, y2);
+                let lo = _mm256_fmadd_ps(
+                    y2,
+                    _mm256_fmadd_ps(y, c(1.0 / 6.0), c(0.5)),
+                    _mm256_add_ps(y, c(1.0)),
+                );
+                let hi = _mm256_fmadd_ps(
+                    y2,
+                    c(1.0 / 720.0),
+                    _mm256_fmadd_ps(y, c(1.0 / 120.0), c(1.0 / 24.0)),
+                );
+                let p = _mm256_fmadd_ps(y4, hi, lo);
                 let scale = _mm256_slli_epi32::<23>(_mm256_add_epi32(ni, _mm256_set1_epi32(127)));
                 Self(_mm256_mul_ps(p, _mm256_castsi256_ps(scale)))
             }
