@@ -348,8 +348,9 @@ struct SplatBlock<L> {
     dx: L,
     /// 1 on the splat's clipped columns, 0 elsewhere.
     inside: L,
-    a: L,
-    cut: L,
+    /// `−½ a` and `−½ cut²`.
+    neg_half_a: L,
+    neg_half_cut: L,
 }
 
 impl<L: Lanes> SplatBlock<L> {
@@ -367,8 +368,8 @@ impl<L: Lanes> SplatBlock<L> {
         Self {
             dx: L::splat(c0 as f32 - s.mx).add(L::load(block(&IOTA, h))),
             inside: L::load(&inside),
-            a: L::splat(s.a),
-            cut: L::splat(cut2),
+            neg_half_a: L::splat(-0.5 * s.a),
+            neg_half_cut: L::splat(-0.5 * cut2),
         }
     }
 
@@ -380,10 +381,11 @@ impl<L: Lanes> SplatBlock<L> {
     #[inline(always)]
     fn row(&self, s: &PixelSplat, dy: f32, gdy: f32) -> L {
         let d = self.dx.add(L::splat(s.beta * dy));
-        let q = self.a.mul(d).mul_add(d, L::splat(gdy));
-        q.mul(L::splat(-0.5))
-            .exp_neg()
-            .keep_le(q, self.cut)
+        // −½q directly (scaling by −½ is exact, so this is bit-identical to forming q first,
+        // one multiply shorter); q ≤ cut² ⟺ −½cut² ≤ −½q.
+        let nhq = self.neg_half_a.mul(d).mul_add(d, L::splat(-0.5 * gdy));
+        nhq.exp_neg()
+            .keep_le(self.neg_half_cut, nhq)
             .mul(self.inside)
     }
 }
