@@ -181,8 +181,6 @@ fn screen_offset(screen: &[f32], k: usize, view: usize, i: usize) -> [f64; 2] {
     [screen[o] as f64, screen[o + 1] as f64]
 }
 
-type ExactPrepared = (Option<(ExactSplat, [usize; 4])>, Option<TileBox>);
-
 /// The affine pixel splat (f32) and tile box of Gaussian `i` in `view`, or `None` if it is
 /// culled (non-finite density, degenerate, behind the near plane, off the detector).
 fn affine_splat(
@@ -264,26 +262,26 @@ fn prepare(
     let det = Detector::new(cam);
     match opts.mode {
         ProjectionMode::Affine => {
-            let items: Vec<Option<(PixelSplat, TileBox)>> = match prepared {
+            // Split in the pool (no intermediate Vec, no serial unzip).
+            let split = |it: Option<(PixelSplat, TileBox)>| {
+                it.map_or((None, None), |(s, b)| (Some(s), Some(b)))
+            };
+            let (splats, boxes) = match prepared {
                 Some(p) => p[view * k * PREPARED_WIDTH..(view + 1) * k * PREPARED_WIDTH]
                     .par_chunks(PREPARED_WIDTH)
                     .with_min_len(256)
-                    .map(|rec| PixelSplat::unpack(rec, &det))
-                    .collect(),
+                    .map(|rec| split(PixelSplat::unpack(rec, &det)))
+                    .unzip(),
                 None => (0..k)
                     .into_par_iter()
                     .with_min_len(64)
-                    .map(|i| affine_splat(g, screen, view, i, cam, &det, opts))
-                    .collect(),
+                    .map(|i| split(affine_splat(g, screen, view, i, cam, &det, opts)))
+                    .unzip(),
             };
-            let (splats, boxes) = items
-                .into_iter()
-                .map(|it| it.map_or((None, None), |(s, b)| (Some(s), Some(b))))
-                .unzip();
             (Prepared::Affine(splats), boxes)
         }
         ProjectionMode::Exact => {
-            let items: Vec<ExactPrepared> = (0..k)
+            let (splats, boxes) = (0..k)
                 .into_par_iter()
                 .map(|i| {
                     if g.densities_of(i).is_none() {
@@ -298,8 +296,7 @@ fn prepare(
                         None => (None, None),
                     }
                 })
-                .collect();
-            let (splats, boxes) = items.into_iter().unzip();
+                .unzip();
             (Prepared::Exact(splats), boxes)
         }
     }
