@@ -138,6 +138,12 @@ mod avx2 {
 
     use super::{LANES, Lanes};
 
+    /// Whether this CPU runs AVX2 and FMA (the type invariant, checked in debug builds where
+    /// values are created).
+    fn supported() -> bool {
+        is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
+    }
+
     /// Lanes 0–3 and 4–7 of `v` as f64.
     #[inline(always)]
     fn widen(v: __m256) -> (__m256d, __m256d) {
@@ -173,11 +179,13 @@ mod avx2 {
     impl Lanes for Avx2 {
         #[inline(always)]
         fn splat(v: f32) -> Self {
+            debug_assert!(supported(), "Avx2 lanes on a CPU without AVX2+FMA");
             // SAFETY: AVX is available (type invariant).
             Self(unsafe { _mm256_set1_ps(v) })
         }
         #[inline(always)]
         fn load(a: &[f32; LANES]) -> Self {
+            debug_assert!(supported(), "Avx2 lanes on a CPU without AVX2+FMA");
             // SAFETY: AVX is available (type invariant); `a` holds 8 readable f32.
             Self(unsafe { _mm256_loadu_ps(a.as_ptr()) })
         }
