@@ -646,7 +646,7 @@ fn forward(
     for (v, cam) in cams.iter().enumerate() {
         let det = Detector::new(cam);
         let (prep, boxes) = prepare(g, screen, prepared, v, cam, opts);
-        let bins = Bins::new([det.tiles_x, det.tiles_y, 1], &boxes);
+        let bins = Bins::tile_lists([det.tiles_x, det.tiles_y, 1], &boxes);
         let tiles: Vec<Vec<f32>> = (0..bins.tiles())
             .into_par_iter()
             .map(|t| {
