@@ -1,8 +1,10 @@
 //! Autodiff registration: the hand-written backward kernels as Burn `Backward` steps.
 //!
 //! The forward ops save their (inner-backend) inputs; the backward step calls the backend's
-//! `*_backward` op once and registers the gradient of every tracked input. The backward ops
-//! themselves are not differentiated (no double backward).
+//! `*_backward` op once and registers the gradient of every tracked input. The projection also
+//! saves its prepared state (see [`GaussianOps::gaussian_project_prepare`]), so the backward
+//! reuses the forward's per-Gaussian preparation. The backward ops themselves are not
+//! differentiated (no double backward), nor is the prepared state.
 
 use burn::backend::{
     AutodiffBackend,
@@ -22,16 +24,22 @@ use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
 #[derive(Debug)]
 struct ProjectBackward;
 
-type ProjectState<B> = ([FloatTensor<B>; 5], Vec<Camera>, ProjectOptions);
+/// The five differentiable inputs, the prepared state, cameras and options.
+type ProjectState<B> = (
+    [FloatTensor<B>; 5],
+    FloatTensor<B>,
+    Vec<Camera>,
+    ProjectOptions,
+);
 
 impl<B: GaussianOps> Backward<B, 5> for ProjectBackward {
     type State = ProjectState<B>;
 
     fn backward(self, ops: Ops<Self::State, 5>, grads: &mut Gradients, _ck: &mut Checkpointer) {
         let grad = grads.consume::<B>(&ops.node);
-        let ([means, scales, rotations, densities, screen], cameras, options) = ops.state;
+        let ([means, scales, rotations, densities, screen], prepared, cameras, options) = ops.state;
         let (g0, g1, g2, g3, g4) = B::gaussian_project_backward(
-            means, scales, rotations, densities, screen, cameras, options, grad,
+            means, scales, rotations, densities, screen, prepared, cameras, options, grad,
         );
         for (parent, g) in ops.parents.into_iter().zip([g0, g1, g2, g3, g4]) {
             if let Some(node) = parent {
@@ -61,12 +69,34 @@ impl<B: GaussianOps> Backward<B, 4> for VoxelizeBackward {
 }
 
 impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
+    fn gaussian_project_prepare(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        screen: FloatTensor<Self>,
+        cameras: Vec<Camera>,
+        options: ProjectOptions,
+    ) -> FloatTensor<Self> {
+        let prepared = B::gaussian_project_prepare(
+            means.into_primitive(),
+            scales.into_primitive(),
+            rotations.into_primitive(),
+            densities.into_primitive(),
+            screen.into_primitive(),
+            cameras,
+            options,
+        );
+        <Self as AutodiffBackend>::from_inner(prepared)
+    }
+
     fn gaussian_project(
         means: FloatTensor<Self>,
         scales: FloatTensor<Self>,
         rotations: FloatTensor<Self>,
         densities: FloatTensor<Self>,
         screen: FloatTensor<Self>,
+        prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
     ) -> FloatTensor<Self> {
@@ -87,15 +117,19 @@ impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
             densities.into_primitive(),
             screen.into_primitive(),
         ];
+        let prepared = prepared.into_primitive();
         match prep {
             OpsKind::Tracked(prep) => {
                 let [a, b, c, d, e] = inputs.clone();
-                let out = B::gaussian_project(a, b, c, d, e, cameras.clone(), options);
-                prep.finish((inputs, cameras, options), out)
+                let out =
+                    B::gaussian_project(a, b, c, d, e, prepared.clone(), cameras.clone(), options);
+                prep.finish((inputs, prepared, cameras, options), out)
             }
             OpsKind::UnTracked(prep) => {
                 let [a, b, c, d, e] = inputs;
-                prep.finish(B::gaussian_project(a, b, c, d, e, cameras, options))
+                prep.finish(B::gaussian_project(
+                    a, b, c, d, e, prepared, cameras, options,
+                ))
             }
         }
     }
@@ -106,6 +140,7 @@ impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
         rotations: FloatTensor<Self>,
         densities: FloatTensor<Self>,
         screen: FloatTensor<Self>,
+        prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
         grad: FloatTensor<Self>,
@@ -122,6 +157,7 @@ impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
             rotations.into_primitive(),
             densities.into_primitive(),
             screen.into_primitive(),
+            prepared.into_primitive(),
             cameras,
             options,
             grad.into_primitive(),

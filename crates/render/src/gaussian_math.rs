@@ -475,9 +475,24 @@ pub fn splat_backward(
     near: f64,
     grad: &SplatGrad,
 ) -> GeomGrad {
-    let Some(st) = splat_state(g, cam, screen_offset, cutoff, near) else {
-        return GeomGrad::default();
-    };
+    splat_backward_with(g, cam, screen_offset, cutoff, near, |_| *grad)
+        .map_or_else(GeomGrad::default, |(geo, _)| geo)
+}
+
+/// [`splat_backward`] with the image-space gradient built from the splat itself,
+/// `grad(&splat)` (e.g. from pixel moments that need its μ and `Σ₂D⁻¹`), so the splat is
+/// computed once. Returns the geometry gradient and the [`SplatGrad`] it chained, or `None`
+/// for a Gaussian [`splat`] rejects.
+pub fn splat_backward_with(
+    g: &GaussianGeom,
+    cam: &Camera,
+    screen_offset: [f64; 2],
+    cutoff: f64,
+    near: f64,
+    grad: impl FnOnce(&Splat) -> SplatGrad,
+) -> Option<(GeomGrad, SplatGrad)> {
+    let st = splat_state(g, cam, screen_offset, cutoff, near)?;
+    let grad = &grad(&st.splat);
     let w = &cam.rotation;
     let jac = &st.jac;
     let [ca, cb, cc] = st.splat.conic_mat;
@@ -562,11 +577,12 @@ pub fn splat_backward(
             g_t[k] += (g_r[k] - r[k] * along) / len;
         }
     }
-    GeomGrad {
+    let geo = GeomGrad {
         mean: mat_t_vec(w, g_t),
         scale: g_scale,
         quat: g_quat,
-    }
+    };
+    Some((geo, *grad))
 }
 
 // ---------------------------------------------------------------------------------------------

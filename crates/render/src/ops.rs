@@ -19,8 +19,27 @@ use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
 
 /// Differentiable Gaussian projection and voxelization. Backward kernels are ops of their own so
 /// every backend (and later the CubeCL port) provides them next to the forward.
+///
+/// Projection runs in two stages: [`GaussianOps::gaussian_project_prepare`] computes the
+/// per-view, per-Gaussian screen-space state once (an opaque, non-differentiable f32 tensor in
+/// a layout the backend chooses), and the forward and backward ops read it, so a forward and its
+/// backward prepare every Gaussian once (the autodiff layer keeps the tensor for the backward).
+/// The prepared tensor must come from the same inputs, cameras and options.
 #[backend_extension(NdArray: cfg(feature = "ndarray"), Flex: cfg(feature = "flex"), Autodiff)]
 pub trait GaussianOps: Backend {
+    /// The prepared state of every view and Gaussian for [`GaussianOps::gaussian_project`] and
+    /// [`GaussianOps::gaussian_project_backward`] (CPU backends: `[V, K, cpu::PREPARED_WIDTH]`,
+    /// see [`crate::cpu::project_prepare`]). Not differentiable.
+    fn gaussian_project_prepare(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        screen: FloatTensor<Self>,
+        cameras: Vec<Camera>,
+        options: ProjectOptions,
+    ) -> FloatTensor<Self>;
+
     /// Line-integral images `[V, M, rows, cols]` of the Gaussians in every camera.
     #[allow(clippy::too_many_arguments)]
     fn gaussian_project(
@@ -29,6 +48,7 @@ pub trait GaussianOps: Backend {
         rotations: FloatTensor<Self>,
         densities: FloatTensor<Self>,
         screen: FloatTensor<Self>,
+        prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
     ) -> FloatTensor<Self>;
@@ -41,6 +61,7 @@ pub trait GaussianOps: Backend {
         rotations: FloatTensor<Self>,
         densities: FloatTensor<Self>,
         screen: FloatTensor<Self>,
+        prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
         grad: FloatTensor<Self>,
@@ -238,12 +259,22 @@ pub fn project(
         None => Tensor::<3>::zeros([v, k, 2], &gaussians.means.device()),
     };
     let g = gaussians.clone();
+    let prepared = Dispatch::gaussian_project_prepare(
+        g.means.clone().into_dispatch(),
+        g.scales.clone().into_dispatch(),
+        g.rotations.clone().into_dispatch(),
+        g.densities.clone().into_dispatch(),
+        screen.clone().into_dispatch(),
+        cameras.to_vec(),
+        *options,
+    );
     Ok(Tensor::from_dispatch(Dispatch::gaussian_project(
         g.means.into_dispatch(),
         g.scales.into_dispatch(),
         g.rotations.into_dispatch(),
         g.densities.into_dispatch(),
         screen.into_dispatch(),
+        prepared,
         cameras.to_vec(),
         *options,
     )))

@@ -36,12 +36,38 @@ pub(crate) use with_gaussians;
 macro_rules! impl_cpu_gaussian_ops {
     ($backend:ty, $read:path, $write:path, $dims:path) => {
         impl $crate::ops::GaussianOps for $backend {
+            fn gaussian_project_prepare(
+                means: FloatTensor<Self>,
+                scales: FloatTensor<Self>,
+                rotations: FloatTensor<Self>,
+                densities: FloatTensor<Self>,
+                screen: FloatTensor<Self>,
+                cameras: Vec<$crate::Camera>,
+                options: $crate::ProjectOptions,
+            ) -> FloatTensor<Self> {
+                let k = $dims(&means)[0];
+                let channels = $dims(&densities)[1];
+                let out = $crate::backend::with_gaussians!(
+                    $read,
+                    &means,
+                    &scales,
+                    &rotations,
+                    &densities,
+                    channels,
+                    |g| $read(&screen, |screen| {
+                        $crate::cpu::project_prepare(&g, screen, &cameras, &options)
+                    })
+                );
+                $write(out, vec![cameras.len(), k, $crate::cpu::PREPARED_WIDTH])
+            }
+
             fn gaussian_project(
                 means: FloatTensor<Self>,
                 scales: FloatTensor<Self>,
                 rotations: FloatTensor<Self>,
                 densities: FloatTensor<Self>,
                 screen: FloatTensor<Self>,
+                prepared: FloatTensor<Self>,
                 cameras: Vec<$crate::Camera>,
                 options: $crate::ProjectOptions,
             ) -> FloatTensor<Self> {
@@ -54,7 +80,11 @@ macro_rules! impl_cpu_gaussian_ops {
                     &densities,
                     channels,
                     |g| $read(&screen, |screen| {
-                        $crate::cpu::project_forward(&g, screen, &cameras, &options)
+                        $read(&prepared, |prepared| {
+                            $crate::cpu::project_forward_prepared(
+                                &g, screen, prepared, &cameras, &options,
+                            )
+                        })
                     })
                 );
                 let (rows, cols) = cameras.first().map_or((0, 0), |c| (c.rows, c.cols));
@@ -67,6 +97,7 @@ macro_rules! impl_cpu_gaussian_ops {
                 rotations: FloatTensor<Self>,
                 densities: FloatTensor<Self>,
                 screen: FloatTensor<Self>,
+                prepared: FloatTensor<Self>,
                 cameras: Vec<$crate::Camera>,
                 options: $crate::ProjectOptions,
                 grad: FloatTensor<Self>,
@@ -87,8 +118,12 @@ macro_rules! impl_cpu_gaussian_ops {
                     &densities,
                     channels,
                     |g| $read(&screen, |screen| {
-                        $read(&grad, |grad| {
-                            $crate::cpu::project_backward(&g, screen, &cameras, &options, grad)
+                        $read(&prepared, |prepared| {
+                            $read(&grad, |grad| {
+                                $crate::cpu::project_backward_prepared(
+                                    &g, screen, prepared, &cameras, &options, grad,
+                                )
+                            })
                         })
                     })
                 );

@@ -5,11 +5,15 @@
 //! the backward pass writes per-(tile, Gaussian) partial sums into disjoint slices, then gathers
 //! them per Gaussian — there are no shared writes anywhere.
 
+mod lanes;
 mod project;
 mod tiles;
 mod voxelize;
 
-pub use project::{ProjectGrads, count_project_evaluations, project_backward, project_forward};
+pub use project::{
+    PREPARED_WIDTH, ProjectGrads, count_project_evaluations, project_backward,
+    project_backward_prepared, project_forward, project_forward_prepared, project_prepare,
+};
 pub use tiles::{Bins, TileBox, tile_span};
 pub use voxelize::{VoxelizeGrads, voxelize_backward, voxelize_forward};
 
@@ -67,10 +71,14 @@ pub fn exp_neg_with<F: MulAdd>(x: f32) -> f32 {
     let n = t - MAGIC;
     let ni = (t.to_bits() as i32).wrapping_sub(MAGIC.to_bits() as i32);
     let y = F::mul_add(-n, LN2_LO, F::mul_add(-n, LN2_HI, x));
-    let mut p = 1.0 / 720.0;
-    for c in [1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0, 1.0] {
-        p = F::mul_add(p, y, c);
-    }
+    // Estrin's scheme: p = (1 + y) + y²(½ + y/6) + y⁴(1/24 + y/120 + y²/720), a dependency
+    // chain of 3 multiply-adds after y² instead of Horner's 6 (the pixel kernels are
+    // latency-bound).
+    let y2 = y * y;
+    let y4 = y2 * y2;
+    let lo = F::mul_add(y2, F::mul_add(y, 1.0 / 6.0, 0.5), y + 1.0);
+    let hi = F::mul_add(y2, 1.0 / 720.0, F::mul_add(y, 1.0 / 120.0, 1.0 / 24.0));
+    let p = F::mul_add(y4, hi, lo);
     let scale = f32::from_bits(((ni + 127) as u32) << 23);
     p * scale
 }

@@ -4,14 +4,23 @@
 //! binned into 16×16 tiles; the prepared geometry is shared by all M density channels. A pixel
 //! receives a Gaussian iff it lies within the Mahalanobis cut-off (affine: of the 2D footprint;
 //! exact: of the ray's closest approach) — a relative criterion, unlike upstream's absolute
-//! `ρμG < 1e-5` skip, so densities of 1e-8 still render. The affine backward recomputes the
-//! preparation, accumulates per-(tile, Gaussian) image-space sums and chains them per Gaussian
-//! through [`gm::splat_backward`]; the exact backward accumulates per-pixel `∂/∂(centre, Σ⁻¹)`.
+//! `ρμG < 1e-5` skip, so densities of 1e-8 still render.
+//!
+//! The affine preparation (f32 pixel splats, [`project_prepare`]) can be computed once and read
+//! by both passes ([`project_forward_prepared`], [`project_backward_prepared`]); the Burn ops do
+//! so. The affine backward evaluates `G` once per (pixel, Gaussian) in 8-lane blocks
+//! ([`super::lanes`], AVX2+FMA when the CPU has it), accumulates per-(tile, Gaussian)
+//! image-space sums in registers, writes them once, and chains them per Gaussian through
+//! [`gm::splat_backward_with`] (one f64 splat per Gaussian); the exact backward accumulates
+//! per-pixel `∂/∂(centre, Σ⁻¹)`.
 
 use rayon::prelude::*;
 
+use super::GaussianSlices;
+#[cfg(target_arch = "x86_64")]
+use super::lanes::Avx2;
+use super::lanes::{LANES, Lanes, Portable};
 use super::tiles::{Bins, TileBox, tile_span};
-use super::{Fused, GaussianSlices, MulAdd, Separate, exp_neg_with};
 use crate::camera::Camera;
 use crate::gaussian_math::{
     self as gm, ExactSplat, GaussianGeom, SplatGrad, camera_ray, exact_splat, exact_splat_backward,
@@ -54,11 +63,67 @@ struct PixelSplat {
     a: f32,
     beta: f32,
     gamma: f32,
+    /// Integration factor μ (length units), so a tile's pass reads one array per Gaussian.
+    mu: f32,
     /// Pixel box `[x0, x1) × [y0, y1)` clamped to the detector.
     x0: u32,
     x1: u32,
     y0: u32,
     y1: u32,
+}
+
+/// Width of one Gaussian's record in a prepared-state buffer (see [`project_prepare`]).
+pub const PREPARED_WIDTH: usize = 10;
+
+impl PixelSplat {
+    /// `[mx, my, a, β, γ, μ, x0, x1, y0, y1]`; a culled Gaussian is all zeros (an empty box).
+    /// Box bounds are below 2²⁰ (the detector limit), so exact in f32.
+    fn pack(s: Option<&PixelSplat>) -> [f32; PREPARED_WIDTH] {
+        s.map_or([0.0; PREPARED_WIDTH], |s| {
+            [
+                s.mx,
+                s.my,
+                s.a,
+                s.beta,
+                s.gamma,
+                s.mu,
+                s.x0 as f32,
+                s.x1 as f32,
+                s.y0 as f32,
+                s.y1 as f32,
+            ]
+        })
+    }
+
+    /// Inverse of [`PixelSplat::pack`], with the box clamped to `det` (so a record made for
+    /// another detector cannot index outside this one) and its tile box; `None` if culled.
+    fn unpack(v: &[f32], det: &Detector) -> Option<(PixelSplat, TileBox)> {
+        // `as` saturates (NaN → 0), so the clamped box is always a valid index range.
+        let x0 = v[6] as usize;
+        let x1 = (v[7] as usize).min(det.cols);
+        let y0 = v[8] as usize;
+        let y1 = (v[9] as usize).min(det.rows);
+        if x0 >= x1 || y0 >= y1 {
+            return None;
+        }
+        let s = PixelSplat {
+            mx: v[0],
+            my: v[1],
+            a: v[2],
+            beta: v[3],
+            gamma: v[4],
+            mu: v[5],
+            x0: x0 as u32,
+            x1: x1 as u32,
+            y0: y0 as u32,
+            y1: y1 as u32,
+        };
+        let tb = TileBox {
+            lo: [x0 / TILE, y0 / TILE, 0],
+            hi: [(x1 - 1) / TILE + 1, (y1 - 1) / TILE + 1, 1],
+        };
+        Some((s, tb))
+    }
 }
 
 struct Detector {
@@ -106,8 +171,8 @@ impl Detector {
 
 /// Per-view preparation of every Gaussian.
 enum Prepared {
-    /// Pixel splats, and per Gaussian its μ and `Σ₂D⁻¹` as `[a, b, c]` (f64, for the backward).
-    Affine(Vec<Option<PixelSplat>>, Vec<(f64, [f64; 3])>),
+    /// Pixel splats (the chain rule recomputes the f64 splat it needs).
+    Affine(Vec<Option<PixelSplat>>),
     Exact(Vec<Option<(ExactSplat, [usize; 4])>>),
 }
 
@@ -116,11 +181,79 @@ fn screen_offset(screen: &[f32], k: usize, view: usize, i: usize) -> [f64; 2] {
     [screen[o] as f64, screen[o + 1] as f64]
 }
 
-type ExactPrepared = (Option<(ExactSplat, [usize; 4])>, Option<TileBox>);
+/// The affine pixel splat (f32) and tile box of Gaussian `i` in `view`, or `None` if it is
+/// culled (non-finite density, degenerate, behind the near plane, off the detector).
+fn affine_splat(
+    g: &GaussianSlices,
+    screen: &[f32],
+    view: usize,
+    i: usize,
+    cam: &Camera,
+    det: &Detector,
+    opts: &ProjectOptions,
+) -> Option<(PixelSplat, TileBox)> {
+    g.densities_of(i)?;
+    let off = screen_offset(screen, g.len(), view, i);
+    let near = opts.near_fraction * cam.sdd;
+    let s = gm::splat(&g.geom(i), cam, off, opts.cutoff, near)?;
+    let bb = [
+        s.mean[0] - s.half_extent[0],
+        s.mean[0] + s.half_extent[0],
+        s.mean[1] - s.half_extent[1],
+        s.mean[1] + s.half_extent[1],
+    ];
+    let (px, tb) = det.boxes(bb)?;
+    let ps = PixelSplat {
+        mx: s.mean[0] as f32,
+        my: s.mean[1] as f32,
+        a: s.conic.a as f32,
+        beta: s.conic.beta as f32,
+        gamma: s.conic.gamma as f32,
+        mu: s.mu as f32,
+        x0: px[0] as u32,
+        x1: px[1] as u32,
+        y0: px[2] as u32,
+        y1: px[3] as u32,
+    };
+    (ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite()).then_some((ps, tb))
+}
 
+/// Prepared state of every view and Gaussian, `[V, K, PREPARED_WIDTH]` (f32): the affine pixel
+/// splats ([`PixelSplat::pack`]) that [`project_forward_prepared`] and
+/// [`project_backward_prepared`] read instead of recomputing them, so one forward and its
+/// backward prepare every Gaussian once. Exact mode keeps its f64 preparation internal (f32
+/// would lose the per-ray accuracy it exists for): its prepared state is zeros, ignored.
+pub fn project_prepare(
+    g: &GaussianSlices,
+    screen: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
+    let k = g.len();
+    let mut out = vec![0.0f32; cams.len() * k * PREPARED_WIDTH];
+    if opts.mode == ProjectionMode::Exact || k == 0 {
+        return out;
+    }
+    for (v, cam) in cams.iter().enumerate() {
+        let det = Detector::new(cam);
+        out[v * k * PREPARED_WIDTH..(v + 1) * k * PREPARED_WIDTH]
+            .par_chunks_mut(PREPARED_WIDTH)
+            .enumerate()
+            .with_min_len(64)
+            .for_each(|(i, rec)| {
+                let s = affine_splat(g, screen, v, i, cam, &det, opts);
+                rec.copy_from_slice(&PixelSplat::pack(s.as_ref().map(|(s, _)| s)));
+            });
+    }
+    out
+}
+
+/// The preparation of `view`: unpacked from `prepared` (affine, see [`project_prepare`]) or
+/// computed (exact, or affine without a prepared state); with every Gaussian's tile box.
 fn prepare(
     g: &GaussianSlices,
     screen: &[f32],
+    prepared: Option<&[f32]>,
     view: usize,
     cam: &Camera,
     opts: &ProjectOptions,
@@ -129,58 +262,26 @@ fn prepare(
     let det = Detector::new(cam);
     match opts.mode {
         ProjectionMode::Affine => {
-            let near = opts.near_fraction * cam.sdd;
-            type Item = (Option<PixelSplat>, (f64, [f64; 3]), Option<TileBox>);
-            let items: Vec<Item> = (0..k)
-                .into_par_iter()
-                .map(|i| {
-                    if g.densities_of(i).is_none() {
-                        return (None, (0.0, [0.0; 3]), None);
-                    }
-                    let off = screen_offset(screen, k, view, i);
-                    let Some(s) = gm::splat(&g.geom(i), cam, off, opts.cutoff, near) else {
-                        return (None, (0.0, [0.0; 3]), None);
-                    };
-                    let bb = [
-                        s.mean[0] - s.half_extent[0],
-                        s.mean[0] + s.half_extent[0],
-                        s.mean[1] - s.half_extent[1],
-                        s.mean[1] + s.half_extent[1],
-                    ];
-                    let Some((px, tb)) = det.boxes(bb) else {
-                        return (None, (0.0, [0.0; 3]), None);
-                    };
-                    let ps = PixelSplat {
-                        mx: s.mean[0] as f32,
-                        my: s.mean[1] as f32,
-                        a: s.conic.a as f32,
-                        beta: s.conic.beta as f32,
-                        gamma: s.conic.gamma as f32,
-                        x0: px[0] as u32,
-                        x1: px[1] as u32,
-                        y0: px[2] as u32,
-                        y1: px[3] as u32,
-                    };
-                    let ok = ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite();
-                    if ok {
-                        (Some(ps), (s.mu, s.conic_mat), Some(tb))
-                    } else {
-                        (None, (0.0, [0.0; 3]), None)
-                    }
-                })
-                .collect();
-            let mut splats = Vec::with_capacity(k);
-            let mut mus = Vec::with_capacity(k);
-            let mut boxes = Vec::with_capacity(k);
-            for (s, mu, b) in items {
-                splats.push(s);
-                mus.push(mu);
-                boxes.push(b);
-            }
-            (Prepared::Affine(splats, mus), boxes)
+            // Split in the pool (no intermediate Vec, no serial unzip).
+            let split = |it: Option<(PixelSplat, TileBox)>| {
+                it.map_or((None, None), |(s, b)| (Some(s), Some(b)))
+            };
+            let (splats, boxes) = match prepared {
+                Some(p) => p[view * k * PREPARED_WIDTH..(view + 1) * k * PREPARED_WIDTH]
+                    .par_chunks(PREPARED_WIDTH)
+                    .with_min_len(256)
+                    .map(|rec| split(PixelSplat::unpack(rec, &det)))
+                    .unzip(),
+                None => (0..k)
+                    .into_par_iter()
+                    .with_min_len(64)
+                    .map(|i| split(affine_splat(g, screen, view, i, cam, &det, opts)))
+                    .unzip(),
+            };
+            (Prepared::Affine(splats), boxes)
         }
         ProjectionMode::Exact => {
-            let items: Vec<ExactPrepared> = (0..k)
+            let (splats, boxes) = (0..k)
                 .into_par_iter()
                 .map(|i| {
                     if g.densities_of(i).is_none() {
@@ -195,8 +296,7 @@ fn prepare(
                         None => (None, None),
                     }
                 })
-                .collect();
-            let (splats, boxes) = items.into_iter().unzip();
+                .unzip();
             (Prepared::Exact(splats), boxes)
         }
     }
@@ -230,49 +330,66 @@ fn clip(s: &PixelSplat, r: (usize, usize, usize, usize)) -> Option<(usize, usize
     (x0 < x1 && y0 < y1).then_some((x0, x1, y0, y1))
 }
 
-/// One tile row of `s` at `dy = y − my` (pixels): `e[j] = G = exp(−½ dᵀ Σ₂D⁻¹ d)` at column
-/// `c0 + j` (`c0` the tile's first column), exactly 0 beyond the cut-off (`dᵀ Σ₂D⁻¹ d > cut²`)
-/// and outside the splat's clipped columns `[x0, x1)`; `None` if the row misses the cut-off
-/// ellipse. The row is evaluated across the full tile width with masks instead of a
-/// variable-length loop over its chord: no scalar remainder, no per-row square root or
-/// division, so the loop runs in full SIMD registers (2 × 8 lanes with AVX2).
+/// `γ dy²` of row `dy` (pixels from the centre), or `None` if the row misses the cut-off ellipse
+/// (`γ dy² ≥ cut²`, or NaN).
 #[inline(always)]
-fn affine_row<F: MulAdd>(
-    s: &PixelSplat,
-    c0: usize,
-    dy: f32,
-    cut2: f32,
-    x0: usize,
-    x1: usize,
-) -> Option<[f32; TILE]> {
+fn row_gdy(s: &PixelSplat, dy: f32, cut2: f32) -> Option<f32> {
     let gdy = s.gamma * dy * dy;
-    if (cut2 - gdy).partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-        return None;
-    }
-    // Lane range [ls, le) of the clipped columns, as floats for a conversion-free compare.
-    let (ls, le) = ((x0 - c0) as f32, (x1 - c0) as f32);
-    let dx0 = c0 as f32 - s.mx;
-    let bdy = s.beta * dy;
-    let mut e = [0.0f32; TILE];
-    // Evaluate only the 8-lane halves that hold clipped columns (one AVX2 register each).
-    for h in half_range(x0 - c0, x1 - c0) {
-        let lanes = h..h + HALF;
-        for (ej, &j) in e[lanes.clone()].iter_mut().zip(&IOTA[lanes]) {
-            let d = dx0 + j + bdy;
-            let q = F::mul_add(s.a * d, d, gdy);
-            let v = exp_neg_with::<F>(-0.5 * q);
-            *ej = if q <= cut2 && j >= ls && j < le {
-                v
+    ((cut2 - gdy).partial_cmp(&0.0) == Some(std::cmp::Ordering::Greater)).then_some(gdy)
+}
+
+/// The per-(splat, tile, column block) constants of [`SplatBlock::row`].
+#[derive(Clone, Copy)]
+struct SplatBlock<L> {
+    /// Column offsets `x − mx` of the block's lanes (pixels).
+    dx: L,
+    /// 1 on the splat's clipped columns, 0 elsewhere.
+    inside: L,
+    /// `−½ a` and `−½ cut²`.
+    neg_half_a: L,
+    neg_half_cut: L,
+}
+
+impl<L: Lanes> SplatBlock<L> {
+    /// Block of tile lanes `h..h + HALF` of a tile starting at column `c0`, for a splat clipped
+    /// to tile lanes `[l0, l1)`.
+    #[inline(always)]
+    fn new(s: &PixelSplat, c0: usize, h: usize, (l0, l1): (usize, usize), cut2: f32) -> Self {
+        let inside: [f32; HALF] = std::array::from_fn(|j| {
+            if (l0..l1).contains(&(h + j)) {
+                1.0
             } else {
                 0.0
-            };
+            }
+        });
+        Self {
+            dx: L::splat(c0 as f32 - s.mx).add(L::load(block(&IOTA, h))),
+            inside: L::load(&inside),
+            neg_half_a: L::splat(-0.5 * s.a),
+            neg_half_cut: L::splat(-0.5 * cut2),
         }
     }
-    Some(e)
+
+    /// `G = exp(−½ dᵀ Σ₂D⁻¹ d)` on the block's lanes of row `dy = y − my` (pixels), exactly 0
+    /// beyond the cut-off (`dᵀ Σ₂D⁻¹ d > cut²`) and outside the clipped columns; `gdy` from
+    /// [`row_gdy`]. The quadratic form is `a (dx + β dy)² + γ dy²` (cancellation-free), and
+    /// every lane is evaluated with masks instead of a variable-length loop over the row's
+    /// chord: no scalar remainder, no per-row square root or division.
+    #[inline(always)]
+    fn row(&self, s: &PixelSplat, dy: f32, gdy: f32) -> L {
+        let d = self.dx.add(L::splat(s.beta * dy));
+        // −½q directly (scaling by −½ is exact, so this is bit-identical to forming q first,
+        // one multiply shorter); q ≤ cut² ⟺ −½cut² ≤ −½q.
+        let nhq = self.neg_half_a.mul(d).mul_add(d, L::splat(-0.5 * gdy));
+        nhq.exp_neg()
+            .keep_le(self.neg_half_cut, nhq)
+            .mul(self.inside)
+    }
 }
 
 /// Lanes per evaluation block of the row kernels: one AVX2 register of f32.
-const HALF: usize = TILE / 2;
+const HALF: usize = LANES;
+const _: () = assert!(TILE == 2 * HALF);
 
 /// First lanes of the `HALF`-lane blocks that hold tile columns `[l0, l1)` (`l1 ≤ TILE`).
 #[inline(always)]
@@ -304,8 +421,8 @@ fn has_avx2() -> bool {
 }
 
 /// Generates a dispatcher `$name` over one body compiled twice: for the build's baseline target
-/// with unfused multiply-adds (`F` = [`Separate`]) and with AVX2+FMA enabled and fused ones
-/// (`F` = [`Fused`]), chosen at run time by [`has_avx2`]. The variants differ in rounding only.
+/// with [`Portable`] lanes (unfused multiply-adds) and with AVX2+FMA enabled and [`Avx2`] lanes
+/// (fused ones), chosen at run time by [`has_avx2`]. The variants differ in rounding only.
 macro_rules! dispatched {
     ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
         $(#[$doc])*
@@ -313,19 +430,19 @@ macro_rules! dispatched {
         fn $name($($arg: $ty),*) {
             #[inline(always)]
             #[allow(clippy::too_many_arguments)]
-            fn body<F: MulAdd>($($arg: $ty),*) $body
+            fn body<L: Lanes>($($arg: $ty),*) $body
             #[cfg(target_arch = "x86_64")]
             #[target_feature(enable = "avx2,fma")]
             #[allow(clippy::too_many_arguments)]
             fn wide($($arg: $ty),*) {
-                body::<Fused>($($arg),*)
+                body::<Avx2>($($arg),*)
             }
             #[cfg(target_arch = "x86_64")]
             if has_avx2() {
                 // SAFETY: `has_avx2` verified that the CPU supports AVX2 and FMA.
                 return unsafe { wide($($arg),*) };
             }
-            body::<Separate>($($arg),*)
+            body::<Portable>($($arg),*)
         }
     };
 }
@@ -343,21 +460,22 @@ dispatched! {
         let Some((x0, x1, y0, y1)) = clip(s, r) else {
             return;
         };
-        let halves = half_range(x0 - r.0, x1 - r.0);
-        for y in y0..y1 {
-            let Some(e) = affine_row::<F>(s, r.0, y as f32 - s.my, cut2, x0, x1) else {
-                continue;
-            };
-            let p = (y - r.2) * TILE;
-            for (c, &w) in w.iter().enumerate() {
-                for h in halves.clone() {
-                    let o = c * TILE_PIXELS + p + h;
-                    let row: &mut [f32; HALF] =
-                        (&mut buf[o..o + HALF]).try_into().expect("HALF-wide block");
-                    for (b, &e) in row.iter_mut().zip(&e[h..h + HALF]) {
-                        // Select, not multiply: lanes outside the ellipse stay 0 even for w = ∞.
-                        *b += if e != 0.0 { w * e } else { 0.0 };
-                    }
+        let lanes = (x0 - r.0, x1 - r.0);
+        for h in half_range(lanes.0, lanes.1) {
+            let sb = SplatBlock::<L>::new(s, r.0, h, lanes, cut2);
+            for y in y0..y1 {
+                let dy = y as f32 - s.my;
+                let Some(gdy) = row_gdy(s, dy, cut2) else {
+                    continue;
+                };
+                let e = sb.row(s, dy, gdy);
+                let p = (y - r.2) * TILE + h;
+                for (c, &w) in w.iter().enumerate() {
+                    let o = c * TILE_PIXELS + p;
+                    let row = block_mut(buf, o);
+                    // Select, not multiply: lanes outside the ellipse stay 0 even for w = ∞.
+                    let add = L::splat(w).mul(e).keep_nonzero(e);
+                    L::load(row).add(add).store(row);
                 }
             }
         }
@@ -368,97 +486,96 @@ dispatched! {
     /// Backward partial sums of splat `s` over tile rect `r` into `acc`
     /// (`[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
     /// [`project_backward`]) from the tile's upstream gradient `gt` (`[M][tile pixels]`).
-    /// `lanes` and `mom` are scratch (any contents on entry).
+    /// `rows` is scratch (any contents on entry).
+    ///
+    /// Per 8-lane column block, two sweeps over the tile rows with register accumulators: the
+    /// first evaluates `G` once per pixel, keeps it in `rows` and sums the moments of `w G`
+    /// (`w = Σ_c ρ_c g_c`) per column; the second sums `S_c = Σ g_c G` per channel from the kept
+    /// `G`. A column's dx is fixed, so the dx moments follow at the reduction:
+    /// `Σ wG dx = Σ_col dx·(Σ_rows wG)`, and so on.
     fn splat_backward(
         s: &PixelSplat,
         r: (usize, usize, usize, usize),
         cut2: f32,
         gt: &[f32],
         dens: &[f32],
-        lanes: &mut [[f32; TILE]],
-        mom: &mut [[f32; TILE]; 3],
+        rows: &mut [[f32; HALF]; TILE],
         acc: &mut [f64],
     ) {
         let m = dens.len();
-        let dx0 = r.0 as f32 - s.mx;
-        // Per-lane (pixel column) partial sums, reduced once per pair, so the row loops are
-        // element-wise and vectorise: `lanes` = S_c per column, `mom` = Σ_rows wG, Σ_rows wG dy,
-        // Σ_rows wG dy² per column. A column's dx is fixed, so the dx moments follow at the
-        // reduction: Σ wG dx = Σ_col dx·(Σ_rows wG), and so on.
-        lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
-        *mom = [[0.0; TILE]; 3];
+        // One channel: the first sweep sums the moments of g G instead (ρ factored out and
+        // applied after the reduction), whose zeroth moment is S_0 itself: no second sweep.
+        let single = m == 1;
+        acc.fill(0.0);
         let Some((x0, x1, y0, y1)) = clip(s, r) else {
             return;
         };
-        let halves = half_range(x0 - r.0, x1 - r.0);
-        for y in y0..y1 {
-            let dy = y as f32 - s.my;
-            let Some(e) = affine_row::<F>(s, r.0, dy, cut2, x0, x1) else {
-                continue;
-            };
-            let p = (y - r.2) * TILE;
-            for h in halves.clone() {
-                let mut wge = [0.0f32; HALF];
-                for c in 0..m {
-                    let o = c * TILE_PIXELS + p + h;
-                    let gc: &[f32; HALF] =
-                        (&gt[o..o + HALF]).try_into().expect("HALF-wide block");
-                    let rho = dens[c];
-                    let lane = &mut lanes[c][h..h + HALF];
-                    for j in 0..HALF {
-                        // Select: a non-finite upstream gradient outside the ellipse gives 0.
-                        let ge = if e[h + j] != 0.0 { gc[j] * e[h + j] } else { 0.0 };
-                        lane[j] += ge;
-                        wge[j] += rho * ge;
+        let lanes = (x0 - r.0, x1 - r.0);
+        for h in half_range(lanes.0, lanes.1) {
+            let sb = SplatBlock::<L>::new(s, r.0, h, lanes, cut2);
+            let (mut lw, mut ly, mut lyy) = (L::zero(), L::zero(), L::zero());
+            for y in y0..y1 {
+                let ty = y - r.2;
+                let dy = y as f32 - s.my;
+                let e = match row_gdy(s, dy, cut2) {
+                    Some(gdy) => sb.row(s, dy, gdy),
+                    None => L::zero(),
+                };
+                let p = ty * TILE + h;
+                let u = if single {
+                    L::load(block(gt, p))
+                } else {
+                    e.store(&mut rows[ty]);
+                    let mut u = L::zero();
+                    for (c, &rho) in dens.iter().enumerate() {
+                        u = L::splat(rho).mul_add(L::load(block(gt, c * TILE_PIXELS + p)), u);
                     }
-                }
-                let [lw, ly, lyy] = &mut *mom;
-                for j in 0..HALF {
-                    let w = wge[j];
-                    let wy = w * dy;
-                    lw[h + j] += w;
-                    ly[h + j] += wy;
-                    lyy[h + j] += wy * dy;
+                    u
+                };
+                // Select: a non-finite upstream gradient outside the ellipse gives 0.
+                let w = e.mul(u).keep_nonzero(e);
+                let wy = w.mul(L::splat(dy));
+                lw = lw.add(w);
+                ly = ly.add(wy);
+                lyy = wy.mul_add(L::splat(dy), lyy);
+            }
+            let [s0, wx, wxx, wy, wxy, wyy] = L::moments(sb.dx, lw, ly, lyy);
+            if single {
+                acc[0] += s0;
+            } else {
+                for c in 0..m {
+                    let mut sc = L::zero();
+                    for y in y0..y1 {
+                        let e = L::load(&rows[y - r.2]);
+                        let g = L::load(block(gt, c * TILE_PIXELS + (y - r.2) * TILE + h));
+                        sc = sc.add(e.mul(g).keep_nonzero(e));
+                    }
+                    acc[c] += sc.sum();
                 }
             }
+            acc[m] += wx;
+            acc[m + 1] += wy;
+            acc[m + 2] += wxx;
+            acc[m + 3] += wxy;
+            acc[m + 4] += wyy;
         }
-        // Reduce only the blocks that were accumulated (the others hold zeros).
-        acc[..m + 5].fill(0.0);
-        for h in halves {
-            for c in 0..m {
-                acc[c] += sum_lanes(widen(&lanes[c][h..h + HALF]));
-            }
-            let [lw, ly, lyy] = [0, 1, 2].map(|q| widen(&mom[q][h..h + HALF]));
-            let dx: [f64; HALF] = std::array::from_fn(|j| (dx0 + IOTA[h + j]) as f64);
-            let x: [f64; HALF] = std::array::from_fn(|j| dx[j] * lw[j]);
-            acc[m] += sum_lanes(x);
-            acc[m + 1] += sum_lanes(ly);
-            acc[m + 2] += sum_lanes(std::array::from_fn(|j| dx[j] * x[j]));
-            acc[m + 3] += sum_lanes(std::array::from_fn(|j| dx[j] * ly[j]));
-            acc[m + 4] += sum_lanes(lyy);
+        if single {
+            let rho = dens[0] as f64;
+            acc[1..].iter_mut().for_each(|v| *v *= rho);
         }
     }
 }
 
-/// The first `HALF` lanes of `v` as f64.
+/// The `HALF`-lane block of `v` at offset `o`.
 #[inline(always)]
-fn widen(v: &[f32]) -> [f64; HALF] {
-    std::array::from_fn(|j| v[j] as f64)
+fn block(v: &[f32], o: usize) -> &[f32; HALF] {
+    v[o..o + HALF].try_into().expect("HALF-wide block")
 }
 
-/// Sum of `HALF` lanes, pairwise (halving element-wise): independent adds that vectorise,
-/// instead of a serial chain of dependent adds per partial sum.
+/// The mutable `HALF`-lane block of `v` at offset `o`.
 #[inline(always)]
-fn sum_lanes(v: [f64; HALF]) -> f64 {
-    let mut a = v;
-    let mut w = HALF / 2;
-    while w > 0 {
-        for j in 0..w {
-            a[j] += a[j + w];
-        }
-        w /= 2;
-    }
-    a[0]
+fn block_mut(v: &mut [f32], o: usize) -> &mut [f32; HALF] {
+    (&mut v[o..o + HALF]).try_into().expect("HALF-wide block")
 }
 
 /// Visit the pixels of an exact splat inside tile rect `r`: `f(local_index, col, row)`.
@@ -488,6 +605,34 @@ pub fn project_forward(
     cams: &[Camera],
     opts: &ProjectOptions,
 ) -> Vec<f32> {
+    forward(g, screen, None, cams, opts)
+}
+
+/// [`project_forward`] reading the per-Gaussian preparation from `prepared` (made by
+/// [`project_prepare`] from the same inputs). A buffer of the wrong length is ignored (the
+/// preparation is then recomputed); boxes are clamped to the detector.
+pub fn project_forward_prepared(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
+    forward(g, screen, fitting(prepared, g, cams), cams, opts)
+}
+
+/// `prepared` if it has the length [`project_prepare`] gives for `g` and `cams`.
+fn fitting<'a>(prepared: &'a [f32], g: &GaussianSlices, cams: &[Camera]) -> Option<&'a [f32]> {
+    (prepared.len() == cams.len() * g.len() * PREPARED_WIDTH).then_some(prepared)
+}
+
+fn forward(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: Option<&[f32]>,
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
     let m = g.channels;
     let Some(first) = cams.first() else {
         return Vec::new();
@@ -500,8 +645,8 @@ pub fn project_forward(
     let cut2 = opts.cutoff * opts.cutoff;
     for (v, cam) in cams.iter().enumerate() {
         let det = Detector::new(cam);
-        let (prep, boxes) = prepare(g, screen, v, cam, opts);
-        let bins = Bins::new([det.tiles_x, det.tiles_y, 1], &boxes);
+        let (prep, boxes) = prepare(g, screen, prepared, v, cam, opts);
+        let bins = Bins::tile_lists([det.tiles_x, det.tiles_y, 1], &boxes);
         let tiles: Vec<Vec<f32>> = (0..bins.tiles())
             .into_par_iter()
             .map(|t| {
@@ -510,7 +655,7 @@ pub fn project_forward(
                 let mut buf = vec![0.0f32; m * n];
                 let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
                 match &prep {
-                    Prepared::Affine(splats, mus) => {
+                    Prepared::Affine(splats) => {
                         let mut w = vec![0.0f32; m];
                         // Gather the tile's splats first: the cache misses of this tight loop
                         // overlap, unlike misses taken inside the pixel loops.
@@ -521,7 +666,7 @@ pub fn project_forward(
                         for &(gi, ref s) in &local {
                             let dens = &g.densities[m * gi..m * gi + m];
                             for c in 0..m {
-                                w[c] = (dens[c] as f64 * mus[gi].0) as f32;
+                                w[c] = dens[c] * s.mu;
                             }
                             splat_forward(s, r, cut2 as f32, &w, &mut buf);
                         }
@@ -580,6 +725,30 @@ pub fn project_backward(
     opts: &ProjectOptions,
     grad: &[f32],
 ) -> ProjectGrads {
+    backward(g, screen, None, cams, opts, grad)
+}
+
+/// [`project_backward`] reading the per-Gaussian preparation from `prepared` (see
+/// [`project_forward_prepared`]).
+pub fn project_backward_prepared(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+    grad: &[f32],
+) -> ProjectGrads {
+    backward(g, screen, fitting(prepared, g, cams), cams, opts, grad)
+}
+
+fn backward(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: Option<&[f32]>,
+    cams: &[Camera],
+    opts: &ProjectOptions,
+    grad: &[f32],
+) -> ProjectGrads {
     let k = g.len();
     let m = g.channels;
     let mut total = ProjectGrads {
@@ -601,7 +770,7 @@ pub fn project_backward(
         let det = Detector::new(cam);
         let near = opts.near_fraction * cam.sdd;
         let gview = &grad[v * m * plane..(v + 1) * m * plane];
-        let (prep, boxes) = prepare(g, screen, v, cam, opts);
+        let (prep, boxes) = prepare(g, screen, prepared, v, cam, opts);
         let bins = Bins::new([det.tiles_x, det.tiles_y, 1], &boxes);
         // Per-slot partial sums. Affine: [S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy,
         // Σ wG dy²] with S_c = Σ g_c G and w = Σ_c ρ_c g_c. Exact: [S_c.., g_centre(3), g_prec(6)].
@@ -625,11 +794,10 @@ pub fn project_backward(
                     gt[o..o + tw].copy_from_slice(&gview[src..src + tw]);
                 }
             }
-            let mut lanes = vec![[0.0f32; TILE]; m];
-            let mut mom = [[0.0f32; TILE]; 3];
+            let mut rows = [[0.0f32; HALF]; TILE];
             // Gather the tile's affine splats first (see the forward pass).
             let local: Vec<Option<PixelSplat>> = match &prep {
-                Prepared::Affine(splats, _) => list.iter().map(|&gi| splats[gi as usize]).collect(),
+                Prepared::Affine(splats) => list.iter().map(|&gi| splats[gi as usize]).collect(),
                 Prepared::Exact(_) => Vec::new(),
             };
             for (j, &gi) in list.iter().enumerate() {
@@ -639,7 +807,7 @@ pub fn project_backward(
                 match &prep {
                     Prepared::Affine(..) => {
                         let Some(s) = &local[j] else { continue };
-                        splat_backward(s, r, cut2 as f32, &gt, dens, &mut lanes, &mut mom, acc);
+                        splat_backward(s, r, cut2 as f32, &gt, dens, &mut rows, acc);
                     }
                     Prepared::Exact(splats) => {
                         let Some((s, px)) = &splats[gi] else { continue };
@@ -672,86 +840,126 @@ pub fn project_backward(
                 }
             }
         });
-        // Gather per Gaussian and chain to its parameters.
-        type PerGaussian = ([f64; 10], Vec<f64>, [f64; 2]);
-        let results: Vec<Option<PerGaussian>> = (0..k)
-            .into_par_iter()
-            .map(|i| {
-                let isects =
-                    &bins.gaussian_isects[bins.gaussian_start[i]..bins.gaussian_start[i + 1]];
-                if isects.is_empty() {
-                    return None;
-                }
-                let mut sum = vec![0.0f64; stride];
-                for &slot in isects {
-                    for (a, b) in sum
-                        .iter_mut()
-                        .zip(&slots[slot * stride..(slot + 1) * stride])
-                    {
-                        *a += b;
+        // Gather per Gaussian and chain to its parameters, written straight into the outputs.
+        let screen_view = &mut total.screen[2 * v * k..2 * (v + 1) * k];
+        total
+            .means
+            .par_chunks_mut(3)
+            .zip(total.scales.par_chunks_mut(3))
+            .zip(total.rotations.par_chunks_mut(4))
+            .zip(total.densities.par_chunks_mut(m))
+            .zip(screen_view.par_chunks_mut(2))
+            .enumerate()
+            .with_min_len(64)
+            .for_each_init(
+                || vec![0.0f64; stride],
+                |sum, (i, ((((out_mean, out_scale), out_rot), out_dens), out_screen))| {
+                    // A Gaussian's slots lie in different tiles' runs (cache misses the f64
+                    // chain below would otherwise wait for): fetch those of a later one now.
+                    if let Some(&[from, to, ..]) = bins.gaussian_start.get(i + PREFETCH_AHEAD..) {
+                        for &slot in &bins.gaussian_isects[from..to] {
+                            prefetch(&slots[slot * stride]);
+                        }
                     }
-                }
-                let geom: GaussianGeom = g.geom(i);
-                let dens = &g.densities[m * i..m * i + m];
-                let off = screen_offset(screen, k, v, i);
-                let (geo, g_dens, g_screen) = match &prep {
-                    Prepared::Affine(_, mus) => {
-                        let (mu, [ca, cb, cc]) = mus[i];
-                        let g_mu: f64 = (0..m).map(|c| dens[c] as f64 * sum[c]).sum();
-                        let (wx, wy) = (sum[m], sum[m + 1]);
-                        let sg = SplatGrad {
-                            mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
-                            conic: [
-                                -0.5 * mu * sum[m + 2],
-                                -0.5 * mu * sum[m + 3],
-                                -0.5 * mu * sum[m + 4],
-                            ],
-                            mu: g_mu,
-                        };
-                        let geo = gm::splat_backward(&geom, cam, off, opts.cutoff, near, &sg);
-                        let g_dens: Vec<f64> = (0..m).map(|c| mu * sum[c]).collect();
-                        (geo, g_dens, sg.mean)
+                    let isects =
+                        &bins.gaussian_isects[bins.gaussian_start[i]..bins.gaussian_start[i + 1]];
+                    if isects.is_empty() {
+                        return;
                     }
-                    Prepared::Exact(_) => {
-                        let g_centre = [sum[m], sum[m + 1], sum[m + 2]];
-                        let gp: [f64; 6] = std::array::from_fn(|q| sum[m + 3 + q]);
-                        let (geo, g_screen) =
-                            exact_splat_backward(&geom, cam, off, g_centre, &sym_unpack(&gp));
-                        (geo, sum[..m].to_vec(), g_screen)
+                    sum.fill(0.0);
+                    for &slot in isects {
+                        for (a, b) in sum
+                            .iter_mut()
+                            .zip(&slots[slot * stride..(slot + 1) * stride])
+                        {
+                            *a += b;
+                        }
                     }
-                };
-                let mut flat = [0.0f64; 10];
-                flat[..3].copy_from_slice(&geo.mean);
-                flat[3..6].copy_from_slice(&geo.scale);
-                flat[6..].copy_from_slice(&geo.quat);
-                let finite = flat
-                    .iter()
-                    .chain(&g_dens)
-                    .chain(&g_screen)
-                    .all(|x| x.is_finite());
-                finite.then_some((flat, g_dens, g_screen))
-            })
-            .collect();
-        for (i, r) in results.into_iter().enumerate() {
-            let Some((flat, g_dens, g_screen)) = r else {
-                continue;
-            };
-            for q in 0..3 {
-                total.means[3 * i + q] += flat[q] as f32;
-                total.scales[3 * i + q] += flat[3 + q] as f32;
-            }
-            for q in 0..4 {
-                total.rotations[4 * i + q] += flat[6 + q] as f32;
-            }
-            for c in 0..m {
-                total.densities[m * i + c] += g_dens[c] as f32;
-            }
-            let o = 2 * (v * k + i);
-            total.screen[o] = g_screen[0] as f32;
-            total.screen[o + 1] = g_screen[1] as f32;
-        }
+                    let geom: GaussianGeom = g.geom(i);
+                    let dens = &g.densities[m * i..m * i + m];
+                    let off = screen_offset(screen, k, v, i);
+                    // ∂L/∂ρ_c = dens_scale · S_c.
+                    let (geo, dens_scale, g_screen) = match &prep {
+                        Prepared::Affine(_) => {
+                            let mut mu = 0.0;
+                            let image_grad = |sp: &gm::Splat| {
+                                mu = sp.mu;
+                                let [ca, cb, cc] = sp.conic_mat;
+                                let mu = sp.mu;
+                                let (wx, wy) = (sum[m], sum[m + 1]);
+                                SplatGrad {
+                                    mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
+                                    conic: [
+                                        -0.5 * mu * sum[m + 2],
+                                        -0.5 * mu * sum[m + 3],
+                                        -0.5 * mu * sum[m + 4],
+                                    ],
+                                    mu: (0..m).map(|c| dens[c] as f64 * sum[c]).sum(),
+                                }
+                            };
+                            let Some((geo, sg)) = gm::splat_backward_with(
+                                &geom,
+                                cam,
+                                off,
+                                opts.cutoff,
+                                near,
+                                image_grad,
+                            ) else {
+                                return;
+                            };
+                            (geo, mu, sg.mean)
+                        }
+                        Prepared::Exact(_) => {
+                            let g_centre = [sum[m], sum[m + 1], sum[m + 2]];
+                            let gp: [f64; 6] = std::array::from_fn(|q| sum[m + 3 + q]);
+                            let (geo, g_screen) =
+                                exact_splat_backward(&geom, cam, off, g_centre, &sym_unpack(&gp));
+                            (geo, 1.0, g_screen)
+                        }
+                    };
+                    let finite = geo
+                        .mean
+                        .iter()
+                        .chain(&geo.scale)
+                        .chain(&geo.quat)
+                        .chain(&g_screen)
+                        .all(|x| x.is_finite())
+                        && sum[..m].iter().all(|x| (dens_scale * x).is_finite());
+                    if !finite {
+                        return;
+                    }
+                    for q in 0..3 {
+                        out_mean[q] += geo.mean[q] as f32;
+                        out_scale[q] += geo.scale[q] as f32;
+                    }
+                    for q in 0..4 {
+                        out_rot[q] += geo.quat[q] as f32;
+                    }
+                    for c in 0..m {
+                        out_dens[c] += (dens_scale * sum[c]) as f32;
+                    }
+                    out_screen[0] = g_screen[0] as f32;
+                    out_screen[1] = g_screen[1] as f32;
+                },
+            );
     }
     total
+}
+
+/// How many Gaussians ahead the backward's per-Gaussian gather prefetches its slots.
+const PREFETCH_AHEAD: usize = 4;
+
+/// Hint the CPU to load the cache line holding `v` (no effect on results; no-op off x86-64).
+#[inline(always)]
+fn prefetch<T>(v: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch never faults nor changes memory, and `v` is a valid reference.
+    unsafe {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        _mm_prefetch::<_MM_HINT_T0>((v as *const T).cast());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = v;
 }
 
 /// Number of Gaussian–pixel evaluations one forward pass performs (affine: the pixels of each
@@ -765,9 +973,9 @@ pub fn count_project_evaluations(
     let screen = vec![0.0f32; 2 * g.len() * cams.len()];
     let mut total = 0;
     for (v, cam) in cams.iter().enumerate() {
-        let (prep, _) = prepare(g, &screen, v, cam, opts);
+        let (prep, _) = prepare(g, &screen, None, v, cam, opts);
         total += match prep {
-            Prepared::Affine(splats, _) => {
+            Prepared::Affine(splats) => {
                 let cut2 = (opts.cutoff * opts.cutoff) as f32;
                 let spans = |s: &PixelSplat| -> usize {
                     (s.y0..s.y1)

@@ -236,16 +236,66 @@ fn tiled_forward_matches_untiled_reference() {
 
 #[test]
 fn simd_dispatch_matches_baseline() {
-    // The AVX2 build of the row loops differs from the baseline only by fused multiply-adds in
-    // the quadratic form and the exp polynomial: per pixel a relative change of a few f32 ulps
-    // (|Δq| ≲ 2⁻²³ q with q ≤ cut² = 9 moves exp(−q/2) by ≲ 6e-7 relatively), so images agree
-    // to 2e-6 of their peak and gradients (sums of such terms, with cancellation) to 2e-5 of
-    // their largest entry. The detector (37 × 40) has partial edge tiles; two channels exercise
-    // the channel loops.
+    // The AVX2 build of the row loops differs from the baseline only by fused multiply-adds (in
+    // the quadratic form, the exp polynomial and the backward's channel and dy² sums): per pixel
+    // a relative change of a few f32 ulps (|Δq| ≲ 2⁻²³ q with q ≤ cut² = 9 moves exp(−q/2) by
+    // ≲ 6e-7 relatively), so images agree to 2e-6 of their peak and gradients (sums of such
+    // terms, with cancellation) to 2e-5 of their largest entry. The detector (37 × 40) has
+    // partial edge tiles; two channels exercise the channel loops, one channel its own path.
     let k = 80;
-    let p = Params::random(k, 2, 20.0, (0.5, 4.0), 11);
     let cams = [cone(0.7, 40, 37, 0.9), parallel(2.1, 40, 37, 0.9)];
-    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for channels in [2, 1] {
+        let p = Params::random(k, channels, 20.0, (0.5, 4.0), 11);
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let screen: Vec<f32> = (0..2 * k * 2)
+            .map(|_| rng.random_range(-0.5..0.5))
+            .collect();
+        let grad: Vec<f32> = (0..2 * channels * 40 * 37)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let opts = ProjectOptions::default();
+        let run = |baseline: bool| {
+            project::FORCE_BASELINE.store(baseline, std::sync::atomic::Ordering::Relaxed);
+            let img = project_forward(&p.slices(), &screen, &cams, &opts);
+            let grads = project_backward(&p.slices(), &screen, &cams, &opts, &grad);
+            project::FORCE_BASELINE.store(false, std::sync::atomic::Ordering::Relaxed);
+            (img, grads)
+        };
+        let (img_base, g_base) = run(true);
+        let (img, g) = run(false);
+        let close = |name: &str, a: &[f32], b: &[f32], tol: f64| {
+            assert_eq!(a.len(), b.len(), "{name}");
+            let scale = a.iter().fold(0.0f64, |m, &v| m.max((v as f64).abs()));
+            assert!(scale > 0.0, "{name}: all zero");
+            let err = a
+                .iter()
+                .zip(b)
+                .fold(0.0f64, |m, (&x, &y)| m.max((x as f64 - y as f64).abs()));
+            assert!(
+                err <= tol * scale,
+                "{name} (M = {channels}): {:e}",
+                err / scale
+            );
+        };
+        close("image", &img_base, &img, 2e-6);
+        close("means", &g_base.means, &g.means, 2e-5);
+        close("scales", &g_base.scales, &g.scales, 2e-5);
+        close("rotations", &g_base.rotations, &g.rotations, 2e-5);
+        close("densities", &g_base.densities, &g.densities, 2e-5);
+        close("screen", &g_base.screen, &g.screen, 2e-5);
+    }
+}
+
+#[test]
+fn prepared_state_reproduces_the_recomputed_passes() {
+    // The prepared records are the f32 pixel splats themselves (boxes exact below 2²⁰), and the
+    // chain rule recomputes its f64 splat either way: results are bit-identical. A buffer of
+    // the wrong length is ignored; one made for a larger detector is clamped, never indexed
+    // out of range.
+    let k = 50;
+    let p = Params::random(k, 2, 20.0, (0.5, 4.0), 17);
+    let cams = [cone(0.3, 40, 37, 0.9), cone(1.9, 40, 37, 0.9)];
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
     let screen: Vec<f32> = (0..2 * k * 2)
         .map(|_| rng.random_range(-0.5..0.5))
         .collect();
@@ -253,31 +303,31 @@ fn simd_dispatch_matches_baseline() {
         .map(|_| rng.random_range(-1.0..1.0))
         .collect();
     let opts = ProjectOptions::default();
-    let run = |baseline: bool| {
-        project::FORCE_BASELINE.store(baseline, std::sync::atomic::Ordering::Relaxed);
-        let img = project_forward(&p.slices(), &screen, &cams, &opts);
-        let grads = project_backward(&p.slices(), &screen, &cams, &opts, &grad);
-        project::FORCE_BASELINE.store(false, std::sync::atomic::Ordering::Relaxed);
-        (img, grads)
-    };
-    let (img_base, g_base) = run(true);
-    let (img, g) = run(false);
-    let close = |name: &str, a: &[f32], b: &[f32], tol: f64| {
-        assert_eq!(a.len(), b.len(), "{name}");
-        let scale = a.iter().fold(0.0f64, |m, &v| m.max((v as f64).abs()));
-        assert!(scale > 0.0, "{name}: all zero");
-        let err = a
-            .iter()
-            .zip(b)
-            .fold(0.0f64, |m, (&x, &y)| m.max((x as f64 - y as f64).abs()));
-        assert!(err <= tol * scale, "{name}: {:e}", err / scale);
-    };
-    close("image", &img_base, &img, 2e-6);
-    close("means", &g_base.means, &g.means, 2e-5);
-    close("scales", &g_base.scales, &g.scales, 2e-5);
-    close("rotations", &g_base.rotations, &g.rotations, 2e-5);
-    close("densities", &g_base.densities, &g.densities, 2e-5);
-    close("screen", &g_base.screen, &g.screen, 2e-5);
+    let g = p.slices();
+    let prepared = project_prepare(&g, &screen, &cams, &opts);
+    assert_eq!(prepared.len(), 2 * k * PREPARED_WIDTH);
+    assert!(prepared.iter().any(|&v| v != 0.0));
+    let img = project_forward(&g, &screen, &cams, &opts);
+    let grads = project_backward(&g, &screen, &cams, &opts, &grad);
+    assert!(img.iter().any(|&v| v != 0.0));
+    assert_eq!(
+        project_forward_prepared(&g, &screen, &prepared, &cams, &opts),
+        img
+    );
+    assert_eq!(
+        project_backward_prepared(&g, &screen, &prepared, &cams, &opts, &grad),
+        grads
+    );
+    let short = &prepared[..prepared.len() - 1];
+    assert_eq!(
+        project_forward_prepared(&g, &screen, short, &cams, &opts),
+        img
+    );
+    let big = [cone(0.3, 90, 80, 0.9), cone(1.9, 90, 80, 0.9)];
+    let foreign = project_prepare(&g, &screen, &big, &opts);
+    let img2 = project_forward_prepared(&g, &screen, &foreign, &cams, &opts);
+    assert_eq!(img2.len(), img.len());
+    assert!(img2.iter().all(|v| v.is_finite()));
 }
 
 #[test]
@@ -430,6 +480,13 @@ fn projection_gradients_match_central_differences() {
             check_project_gradients(&p, &cams, &opts, 5);
         }
     }
+    // One channel takes its own path in the affine pixel kernel (ρ factored out of the sums).
+    let p = Params::random(3, 1, 6.0, (1.5, 4.0), 12);
+    let opts = ProjectOptions {
+        cutoff: 8.0,
+        ..Default::default()
+    };
+    check_project_gradients(&p, &[cone(0.4, 20, 18, 1.2)], &opts, 6);
 }
 
 #[test]

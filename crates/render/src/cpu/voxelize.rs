@@ -200,7 +200,7 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
     let cut2 = (opts.cutoff * opts.cutoff) as f32;
     let tg = TileGrid::new(grid);
     let (splats, boxes) = prepare(g, grid, opts.cutoff);
-    let bins = Bins::new(tg.tiles, &boxes);
+    let bins = Bins::tile_lists(tg.tiles, &boxes);
     let tiles: Vec<Vec<f32>> = (0..tg.n_tiles())
         .into_par_iter()
         .map(|t| {
