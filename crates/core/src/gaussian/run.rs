@@ -299,6 +299,29 @@ fn image(p: ArrayView3<f32>, v: usize) -> Vec<f32> {
     p.index_axis(Axis(0), v).iter().copied().collect()
 }
 
+/// The initial model and its world from an FDK of `projections` at `views`.
+fn initial_model(
+    config: &GaussianConfig,
+    geometry: &Geometry,
+    projections: ArrayView3<f32>,
+    views: &[usize],
+    device: &Device,
+) -> Result<(GaussianModel, World)> {
+    let init_fdk = fdk_of(geometry, projections, views)?;
+    let world = World::new(geometry, density_scale(init_fdk.view())?)?;
+    let bounds = config.bounds();
+    let host = from_fdk(
+        init_fdk.view(),
+        &geometry.volume,
+        &world,
+        &bounds,
+        &config.init,
+        config.seed,
+        device,
+    )?;
+    Ok((GaussianModel::new(&host, bounds, device), world))
+}
+
 fn r2gs(ctx: &mut Ctx) -> Result<Vec<Array3<f32>>> {
     let (config, scene, device) = (ctx.config, ctx.scene, ctx.device);
     let geometry = &scene.geometry;
@@ -306,20 +329,8 @@ fn r2gs(ctx: &mut Ctx) -> Result<Vec<Array3<f32>>> {
     for (c, ch) in scene.channels.iter().enumerate() {
         let views = &ctx.views[c];
         let proj = scene.channel_projections(c);
-        let init_fdk = fdk_of(geometry, proj, views)?;
-        let world = World::new(geometry, density_scale(init_fdk.view())?)?;
-        let bounds = config.bounds();
-        let host = from_fdk(
-            init_fdk.view(),
-            &geometry.volume,
-            &world,
-            &bounds,
-            &config.init,
-            config.seed,
-            device,
-        )
-        .map_err(|e| e.under(&format!("channels[{c}]")))?;
-        let mut model = GaussianModel::new(&host, bounds, device);
+        let (mut model, world) = initial_model(config, geometry, proj, views, device)
+            .map_err(|e| e.under(&format!("channels[{c}]")))?;
         let images = views.iter().map(|&v| image(proj, v)).collect();
         let sup = supervision(
             geometry,
@@ -424,19 +435,7 @@ fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)>
             .zip(img)
             .for_each(|(a, b)| *a = *b);
     }
-    let init_fdk = fdk_of(geometry, stack.view(), &sviews)?;
-    let world = World::new(geometry, density_scale(init_fdk.view())?)?;
-    let bounds = config.bounds();
-    let host = from_fdk(
-        init_fdk.view(),
-        &geometry.volume,
-        &world,
-        &bounds,
-        &config.init,
-        config.seed,
-        device,
-    )?;
-    let mut model = GaussianModel::new(&host, bounds, device);
+    let (mut model, world) = initial_model(config, geometry, stack.view(), &sviews, device)?;
     let sup = supervision(
         geometry,
         &world,
