@@ -5,7 +5,7 @@
 //! moments here. Rows created by densification start with zero moments; pruned rows drop theirs.
 //! The step counter (bias correction) is per tensor, as in 3DGS.
 
-use burn::tensor::{Tensor, TensorData};
+use burn::tensor::Tensor;
 
 /// `lr(t) = exp((1 − f)·ln lr₀ + f·ln lr₁)`, `f = min(t / steps, 1)`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -77,18 +77,14 @@ impl AdamParam {
         debug_assert_eq!(k, src.len());
         let device = value.device();
         let gather = |t: &Tensor<2>| -> Tensor<2> {
-            let old: Vec<f32> = t
-                .to_data()
-                .convert::<f32>()
-                .try_into_vec::<f32>()
-                .expect("f32 moments");
+            let old = super::host_values(t);
             let mut out = vec![0.0f32; k * d];
             for (i, s) in src.iter().enumerate() {
                 if let Some(j) = *s {
                     out[i * d..(i + 1) * d].copy_from_slice(&old[j * d..(j + 1) * d]);
                 }
             }
-            Tensor::from_data(TensorData::new(out, [k, d]), &device)
+            super::upload(out, d, &device)
         };
         self.m1 = gather(&self.m1);
         self.m2 = gather(&self.m2);
@@ -104,10 +100,8 @@ impl AdamParam {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn values(t: &Tensor<2>) -> Vec<f32> {
-        t.to_data().convert::<f32>().try_into_vec::<f32>().unwrap()
-    }
+    use crate::gaussian::host_values as values;
+    use burn::tensor::TensorData;
 
     #[test]
     fn first_steps_match_the_closed_form_and_remap_moves_moments() {

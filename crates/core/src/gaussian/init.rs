@@ -11,7 +11,7 @@ use super::host::{HostGaussians, ScaleBounds, inverse_softplus};
 use super::world::World;
 use crate::geometry::VolumeGrid;
 use crate::{Error, Result};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::Device;
 use kiddo::SquaredEuclidean;
 use kiddo::immutable::float::kdtree::ImmutableKdTree;
 use ndarray::ArrayView3;
@@ -203,11 +203,7 @@ fn fit_rescale(
     let g = model.activate(None).gaussians;
     let vol = prism_render::voxelize(&g, &world.voxel_grid(grid), &Default::default())
         .map_err(|e| Error::invalid("init", e.to_string()))?;
-    let v: Vec<f32> = vol
-        .into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .expect("f32");
+    let v = super::host_values(&vol);
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for (a, b) in v.iter().zip(fdk.iter()) {
         let b = *b as f64 / world.density_scale;
@@ -221,18 +217,4 @@ fn fit_rescale(
         ));
     }
     Ok(num / den)
-}
-
-/// Convenience for tests and callers that hold a tensor: the values of a `[K, M]` tensor.
-pub fn column_values(t: &Tensor<2>) -> Vec<f32> {
-    t.to_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .expect("f32")
-}
-
-/// A `[K, M]` tensor from row-major values.
-pub fn tensor2(values: Vec<f32>, cols: usize, device: &Device) -> Tensor<2> {
-    let k = values.len() / cols.max(1);
-    Tensor::from_data(TensorData::new(values, [k, cols]), device)
 }

@@ -29,6 +29,22 @@ pub use host::{HostGaussians, ScaleBounds};
 pub use model::{GaussianModel, Learnable};
 pub use world::World;
 
+use burn::tensor::{Device, Tensor, TensorData};
+
+/// The values of a tensor, row-major, as f32 (one host read).
+pub fn host_values<const D: usize>(t: &Tensor<D>) -> Vec<f32> {
+    t.to_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .expect("float tensors convert to f32")
+}
+
+/// A `[rows, cols]` tensor from row-major values.
+pub fn upload(values: Vec<f32>, cols: usize, device: &Device) -> Tensor<2> {
+    let rows = values.len() / cols.max(1);
+    Tensor::from_data(TensorData::new(values, [rows, cols]), device)
+}
+
 /// The default CPU device: Flex (NdArray is deprecated in Burn 0.22) when compiled in.
 pub fn cpu_device() -> burn::tensor::Device {
     #[cfg(feature = "flex")]

@@ -6,8 +6,9 @@
 
 use super::adam::AdamParam;
 use super::host::{HostGaussians, ScaleBounds};
+use super::{host_values, upload};
 use burn::tensor::activation::sigmoid;
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Device, Tensor};
 use prism_render::Gaussians;
 
 /// Which parameter groups receive gradients and Adam steps.
@@ -57,25 +58,14 @@ pub struct Activated {
     pub leaves: [Tensor<2>; 4],
 }
 
-fn upload(v: &[f32], cols: usize, device: &Device) -> Tensor<2> {
-    Tensor::from_data(TensorData::new(v.to_vec(), [v.len() / cols, cols]), device)
-}
-
-fn download(t: &Tensor<2>) -> Vec<f32> {
-    t.to_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .expect("f32 parameters")
-}
-
 impl GaussianModel {
     /// Upload host parameters (fresh optimiser state).
     pub fn new(host: &HostGaussians, bounds: ScaleBounds, device: &Device) -> Self {
         GaussianModel {
-            means: AdamParam::new(upload(&host.means, 3, device)),
-            scales: AdamParam::new(upload(&host.scales, 3, device)),
-            rotations: AdamParam::new(upload(&host.rotations, 4, device)),
-            densities: AdamParam::new(upload(&host.densities, host.channels, device)),
+            means: AdamParam::new(upload(host.means.clone(), 3, device)),
+            scales: AdamParam::new(upload(host.scales.clone(), 3, device)),
+            rotations: AdamParam::new(upload(host.rotations.clone(), 4, device)),
+            densities: AdamParam::new(upload(host.densities.clone(), host.channels, device)),
             bounds,
         }
     }
@@ -100,10 +90,10 @@ impl GaussianModel {
     pub fn to_host(&self) -> HostGaussians {
         HostGaussians {
             channels: self.channels(),
-            means: download(&self.means.value),
-            scales: download(&self.scales.value),
-            rotations: download(&self.rotations.value),
-            densities: download(&self.densities.value),
+            means: host_values(&self.means.value),
+            scales: host_values(&self.scales.value),
+            rotations: host_values(&self.rotations.value),
+            densities: host_values(&self.densities.value),
         }
     }
 
@@ -111,12 +101,14 @@ impl GaussianModel {
     /// Gaussian with zero Adam moments).
     pub fn remap(&mut self, host: &HostGaussians, src: &[Option<usize>]) {
         let device = self.device();
-        self.means.remap(upload(&host.means, 3, &device), src);
-        self.scales.remap(upload(&host.scales, 3, &device), src);
+        self.means
+            .remap(upload(host.means.clone(), 3, &device), src);
+        self.scales
+            .remap(upload(host.scales.clone(), 3, &device), src);
         self.rotations
-            .remap(upload(&host.rotations, 4, &device), src);
+            .remap(upload(host.rotations.clone(), 4, &device), src);
         self.densities
-            .remap(upload(&host.densities, host.channels, &device), src);
+            .remap(upload(host.densities.clone(), host.channels, &device), src);
     }
 
     /// Replace the density columns (e.g. one column per channel after the structural stage);

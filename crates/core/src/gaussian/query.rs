@@ -79,11 +79,7 @@ pub fn render_views(
         let cams: Vec<_> = chunk.iter().map(|&v| g_world.camera(v)).collect();
         let img =
             project(&gaussians, &cams, None, &ProjectOptions::default()).map_err(render_error)?;
-        let data: Vec<f32> = img
-            .into_data()
-            .convert::<f32>()
-            .try_into_vec::<f32>()
-            .expect("f32 projections");
+        let data = super::host_values(&img);
         for (j, _) in chunk.iter().enumerate() {
             let dst = out.index_axis_mut(Axis(0), chunk_i * 8 + j);
             let src = &data[j * rows * cols..(j + 1) * rows * cols];

@@ -526,7 +526,7 @@ fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)>
                     ratios.iter().map(move |r| inverse_softplus(a * r) as f32)
                 })
                 .collect();
-            model.set_densities(super::init::tensor2(raw, m, device));
+            model.set_densities(super::upload(raw, m, device));
             let stage = Stage {
                 iterations: config.density_iterations,
                 learn: Learnable::DENSITY,
@@ -538,7 +538,7 @@ fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)>
             model.densities.value.clone()
         }
     };
-    let raw_host: Vec<f32> = super::init::column_values(&raw);
+    let raw_host = super::host_values(&raw);
     save_model(
         &ctx.out_dir.join("gaussians.safetensors"),
         &model,

@@ -195,11 +195,7 @@ fn voxelize_gaussians(g: Gaussians, grid: &VolumeGrid, world: &World) -> Result<
     let v =
         voxelize(&g, &world.voxel_grid(grid), &VoxelizeOptions::default()).map_err(render_error)?;
     let [m, z, y, x] = v.dims();
-    let data: Vec<f32> = v
-        .into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .expect("f32 volume");
+    let data = super::host_values(&v);
     let scale = world.density_scale as f32;
     Ok(Array4::from_shape_vec((m, z, y, x), data)
         .expect("shape of the voxelized volume")
@@ -589,18 +585,8 @@ impl GradStats {
 
     /// Mean norm per Gaussian (0 where it never received a gradient).
     fn scores(&self) -> Vec<f32> {
-        let s: Vec<f32> = self
-            .sum
-            .to_data()
-            .convert::<f32>()
-            .try_into_vec::<f32>()
-            .expect("f32");
-        let c: Vec<f32> = self
-            .count
-            .to_data()
-            .convert::<f32>()
-            .try_into_vec::<f32>()
-            .expect("f32");
+        let s = super::host_values(&self.sum);
+        let c = super::host_values(&self.count);
         s.iter()
             .zip(&c)
             .map(|(s, c)| if *c > 0.0 { s / c } else { 0.0 })
