@@ -168,4 +168,77 @@ fn four_dsg_with_a_held_out_channel_then_queries() {
     assert!(ok, "{t}");
     let (ok, t) = prism(&["query", path(&run), "--coordinate", "120", "-o", path(&out)]);
     assert!(!ok && t.contains("extrapolate"), "{t}");
+    // The report marks the predicted channel and lists the volumes.
+    let (ok, t) = prism(&["report", path(&run)]);
+    assert!(ok, "{t}");
+    assert!(t.contains("| 70keV |") && t.contains("* |"), "{t}");
+    assert!(t.contains(path(&run.join("90keV.npy"))), "{t}");
+}
+
+#[test]
+fn ablation_runs_every_variant_from_one_stage_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("scene.yaml");
+    std::fs::write(&cfg, SPECTRAL_SCENE).unwrap();
+    let scene = dir.path().join("scene");
+    assert!(prism(&["simulate", path(&cfg), "-o", path(&scene)]).0);
+    let rc = dir.path().join("4dsg.yaml");
+    std::fs::write(
+        &rc,
+        "method: 4dsg\niterations: 10\neval_every: 0\ninit: {n_points: 200, threshold: 0.05, \
+         density_rescale: 0.15, neighbours: 3}\ndensify: null\n\
+         stage2: {iterations: 4, curve_model: {width: 8, depth: 1, table_size: 64}}\n",
+    )
+    .unwrap();
+    let out = dir.path().join("ablation");
+    let (ok, t) = prism(&[
+        "ablate",
+        "curve-model",
+        path(&rc),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&out),
+    ]);
+    assert!(ok, "{t}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("ablation.json")).unwrap()).unwrap();
+    let rows = report["rows"].as_array().unwrap();
+    let names: Vec<&str> = rows
+        .iter()
+        .map(|r| r["variant"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["gscnet", "mlp"]);
+    let stage1_s = report["stage1_s"].as_f64().unwrap();
+    for r in rows {
+        let v = out.join(r["variant"].as_str().unwrap());
+        assert!(v.join("metrics.json").is_file() && v.join("50keV.npy").is_file());
+        assert!(r["psnr"].as_f64().unwrap().is_finite());
+        // Each variant's run includes the shared stage 1: its log starts with the geometry
+        // records and its time counts the geometry's.
+        let log = std::fs::read_to_string(v.join("log.jsonl")).unwrap();
+        let stages: Vec<serde_json::Value> = log
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(stages.first().unwrap()["stage"], "geometry");
+        assert_eq!(stages.last().unwrap()["stage"], r["curve_model"]);
+        assert!(r["train_s"].as_f64().unwrap() >= stage1_s);
+    }
+    assert!(t.contains("| gscnet |") && t.contains("| mlp |"), "{t}");
+    // Only `4dsg` has a stage 2 to ablate.
+    std::fs::write(&rc, "method: sart\niterations: 2\n").unwrap();
+    let (ok, t) = prism(&[
+        "ablate",
+        "freeze",
+        path(&rc),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&out),
+    ]);
+    assert!(
+        !ok && t.contains("method") && t.contains("4dsg.yaml"),
+        "{t}"
+    );
 }

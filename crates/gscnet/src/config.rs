@@ -15,6 +15,16 @@ pub enum CurveModelKind {
     Mlp,
 }
 
+impl CurveModelKind {
+    /// The config spelling: `gscnet` or `mlp`.
+    pub fn name(self) -> &'static str {
+        match self {
+            CurveModelKind::Gscnet => "gscnet",
+            CurveModelKind::Mlp => "mlp",
+        }
+    }
+}
+
 /// Hyper-parameters of the curve model. Every field has a small default that runs on a CPU; a
 /// YAML/JSON section may give any subset (`kind: mlp`, `width: 48`, …). Unknown keys are errors.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -44,6 +54,12 @@ pub struct CurveModelConfig {
     pub dt_min: f32,
     /// See `dt_min`.
     pub dt_max: f32,
+    /// Evaluate the network on T nodes of the conditioned density û ∈ [−1, 1] and interpolate
+    /// linearly to each Gaussian's û (default 2048). A Gaussian enters the network only through
+    /// its common raw density (tokens γ_u(û_i) + γ_s(τ_m)), so this is the same curve up to the
+    /// interpolation error O(h²·|Δu''|), h = 2/(T − 1), at a cost independent of K. 0: evaluate
+    /// the network once per Gaussian.
+    pub table_size: usize,
 }
 
 impl Default for CurveModelConfig {
@@ -59,6 +75,7 @@ impl Default for CurveModelConfig {
             u_scale: 4.0,
             dt_min: 0.01,
             dt_max: 1.0,
+            table_size: 2048,
         }
     }
 }
@@ -118,6 +135,12 @@ impl CurveModelConfig {
                     "{} must be finite and ≥ dt_min = {}",
                     self.dt_max, self.dt_min
                 ),
+            ));
+        }
+        if self.table_size == 1 {
+            return Err(Error::invalid(
+                "table_size",
+                "1 node cannot interpolate: use 0 (per-Gaussian evaluation) or ≥ 2",
             ));
         }
         Ok(())
@@ -189,6 +212,13 @@ mod tests {
                 ..d()
             }),
             "dt_max"
+        );
+        assert_eq!(
+            field(CurveModelConfig {
+                table_size: 1,
+                ..d()
+            }),
+            "table_size"
         );
     }
 }

@@ -47,9 +47,10 @@ impl GscNet {
         }
     }
 
-    /// `u_c` [K], `tau` [M] → Δu [K, M] (shapes checked by [`crate::CurveModel::forward`]).
-    pub fn forward(&self, u_c: Tensor<1>, tau: Tensor<1>) -> Tensor<2> {
-        let (mut x, spectral) = self.tokenizer.forward(u_c, tau);
+    /// Conditioned densities `u_hat` [K] (see [`Tokenizer::condition`]), `tau` [M] → Δu [K, M]
+    /// (shapes checked by [`crate::CurveModel::forward`]).
+    pub fn forward(&self, u_hat: Tensor<1>, tau: Tensor<1>) -> Tensor<2> {
+        let (mut x, spectral) = self.tokenizer.forward(u_hat, tau);
         for block in &self.blocks {
             x = block.forward(x);
         }

@@ -34,11 +34,11 @@ impl CurveMlp {
         }
     }
 
-    /// `u_c` [K], `tau` [M] → Δu [K, M].
-    pub fn forward(&self, u_c: Tensor<1>, tau: Tensor<1>) -> Tensor<2> {
-        let [k] = u_c.dims();
+    /// Conditioned densities `u_hat` [K] (see [`Tokenizer::condition`]), `tau` [M] → Δu [K, M].
+    pub fn forward(&self, u_hat: Tensor<1>, tau: Tensor<1>) -> Tensor<2> {
+        let [k] = u_hat.dims();
         let [m] = tau.dims();
-        let (mut x, _) = self.tokenizer.forward(u_c, tau);
+        let (mut x, _) = self.tokenizer.forward(u_hat, tau);
         for layer in &self.hidden {
             x = silu(init::apply_rows(layer, x));
         }

@@ -1,8 +1,8 @@
 //! [`CurveModel`]: GSC-Net or the MLP ablation behind one checked entry point.
 
 use crate::init::SeedStream;
-use burn::module::Module;
-use burn::tensor::{Device, Tensor};
+use burn::module::{Module, Param};
+use burn::tensor::{Device, Int, Tensor, TensorData};
 
 use crate::config::{CurveModelConfig, CurveModelKind};
 use crate::grid::SpectralGrid;
@@ -25,10 +25,20 @@ pub enum CurveNet {
 /// GSC-Net's basis B ∈ R^{R×M} has one column per observed grid point, so a model is tied to the
 /// grid it was built for; unobserved channels are queried from the predicted curve with
 /// [`crate::interpolate_curve`], not by feeding a new τ.
+///
+/// Δu = b + net(u⁽ᶜ⁾, τ): besides the network every model has a learnable spectral baseline
+/// b ∈ R^M shared by all Gaussians (zero at init; [`CurveModel::set_baseline`] starts it from the
+/// data). It carries the object-wide change of attenuation with energy, so the network only
+/// learns how each Gaussian's curve departs from it, and stage 2 does not start with every
+/// channel at the structural (channel-mean) densities.
 #[derive(Module, Debug)]
 pub struct CurveModel {
     pub net: CurveNet,
+    /// The spectral baseline b [M] (raw-density units).
+    pub baseline: Param<Tensor<1>>,
     channels: usize,
+    /// Nodes of the û table (0: per-Gaussian evaluation), see [`CurveModelConfig::table_size`].
+    table_size: usize,
 }
 
 impl CurveModelConfig {
@@ -54,7 +64,13 @@ impl CurveModelConfig {
             CurveModelKind::Gscnet => CurveNet::Gscnet(GscNet::new(&mut rng, self, m, device)),
             CurveModelKind::Mlp => CurveNet::Mlp(CurveMlp::new(&mut rng, self, device)),
         };
-        Ok(CurveModel { net, channels: m })
+        let baseline = Param::from_tensor(Tensor::zeros([m], device));
+        Ok(CurveModel {
+            net,
+            baseline,
+            channels: m,
+            table_size: self.table_size,
+        })
     }
 }
 
@@ -62,6 +78,37 @@ impl CurveModel {
     /// Number of observed channels M the model was built for.
     pub fn channels(&self) -> usize {
         self.channels
+    }
+
+    /// Start the spectral baseline b [M] from `values` (e.g. the raw-density offsets that turn
+    /// the structural densities into each channel's).
+    ///
+    /// Errors: not M values, or a non-finite value (field `baseline`).
+    pub fn set_baseline(&mut self, values: &[f32]) -> Result<()> {
+        if values.len() != self.channels || values.iter().any(|v| !v.is_finite()) {
+            return Err(Error::invalid(
+                "baseline",
+                format!("needs M = {} finite values, got {values:?}", self.channels),
+            ));
+        }
+        let device = self.baseline.val().device();
+        let t = Tensor::from_data(TensorData::new(values.to_vec(), [values.len()]), &device);
+        self.baseline = Param::from_tensor(t);
+        Ok(())
+    }
+
+    fn tokenizer(&self) -> &crate::tokenizer::Tokenizer {
+        match &self.net {
+            CurveNet::Gscnet(net) => &net.tokenizer,
+            CurveNet::Mlp(net) => &net.tokenizer,
+        }
+    }
+
+    fn net_forward(&self, u_hat: Tensor<1>, tau: Tensor<1>) -> Tensor<2> {
+        match &self.net {
+            CurveNet::Gscnet(net) => net.forward(u_hat, tau),
+            CurveNet::Mlp(net) => net.forward(u_hat, tau),
+        }
     }
 
     /// Which network this is.
@@ -91,10 +138,28 @@ impl CurveModel {
         if k == 0 {
             return Ok(Tensor::zeros([0, m], &u_c.device()));
         }
-        Ok(match &self.net {
-            CurveNet::Gscnet(net) => net.forward(u_c, tau),
-            CurveNet::Mlp(net) => net.forward(u_c, tau),
-        })
+        let u_hat = self.tokenizer().condition(u_c);
+        let du = match self.table_size {
+            0 => self.net_forward(u_hat, tau),
+            t => {
+                // Nodes û_j = −1 + j·h, h = 2/(T − 1); each Gaussian blends its two nodes.
+                let device = u_hat.device();
+                let h = 2.0 / (t - 1) as f32;
+                let nodes = Tensor::<1, Int>::arange(0..t as i64, &device)
+                    .float()
+                    .mul_scalar(h)
+                    .sub_scalar(1.0);
+                let table = self.net_forward(nodes, tau);
+                let pos = u_hat.add_scalar(1.0).div_scalar(h);
+                let lower = pos.clone().floor().clamp(0.0, (t - 2) as f32).detach();
+                let w = pos.sub(lower.clone()).unsqueeze_dim::<2>(1);
+                let lower = lower.int();
+                let f0 = table.clone().select(0, lower.clone());
+                let f1 = table.select(0, lower.add_scalar(1));
+                f0.clone().add(f1.sub(f0).mul(w))
+            }
+        };
+        Ok(du.add(self.baseline.val().unsqueeze_dim::<2>(0)))
     }
 }
 
@@ -163,6 +228,80 @@ mod tests {
         };
         assert_eq!(run(1), run(1));
         assert_ne!(run(1), run(2));
+    }
+
+    /// The û table against per-Gaussian evaluation, values and gradients w.r.t. u, for both
+    /// networks. Linear interpolation errs by ≤ h²/8·max|F''| (values) and ≤ h/2·max|F''|
+    /// (slopes), h = 2/(T − 1); with F's highest Fourier frequency 2³π in û (and û' ≤ 1/s)
+    /// that is ~1e-5 and ~1e-2 of F's scale at T = 2048.
+    #[test]
+    fn the_table_matches_per_gaussian_evaluation() {
+        let device = crate::test_util::cpu().autodiff();
+        let grid = uneven_grid(4);
+        let u: Vec<f32> = (0..97).map(|i| -12.0 + 0.25 * i as f32).collect();
+        for kind in KINDS {
+            let run = |table_size| {
+                let model = CurveModelConfig {
+                    kind,
+                    table_size,
+                    ..CurveModelConfig::default()
+                }
+                .init(&grid, &device, 3)
+                .unwrap();
+                let ut = Tensor::<1>::from_data(TensorData::new(u.clone(), [u.len()]), &device)
+                    .require_grad();
+                let out = model.forward(ut.clone(), grid.to_tensor(&device)).unwrap();
+                let grads = out.clone().sum().backward();
+                (values(out), values(ut.grad(&grads).unwrap()))
+            };
+            let (exact, g_exact) = run(0);
+            let (table, g_table) = run(2048);
+            let scale = exact.iter().fold(0.0f32, |a, x| a.max(x.abs()));
+            let err = exact
+                .iter()
+                .zip(&table)
+                .fold(0.0f32, |a, (x, y)| a.max((x - y).abs()));
+            let g_scale = g_exact.iter().fold(0.0f32, |a, x| a.max(x.abs()));
+            let g_err = g_exact
+                .iter()
+                .zip(&g_table)
+                .fold(0.0f32, |a, (x, y)| a.max((x - y).abs()));
+            println!(
+                "{kind:?}: |Δu| ≤ {scale:.3e}, table error {err:.3e}; |∂/∂u| ≤ {g_scale:.3e}, error {g_err:.3e}"
+            );
+            assert!(
+                scale > 0.0 && err <= 1e-4 * scale,
+                "{kind:?}: {err} vs {scale}"
+            );
+            assert!(
+                g_scale > 0.0 && g_err <= 2e-2 * g_scale,
+                "{kind:?}: {g_err} vs {g_scale}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_baseline_shifts_every_curve_by_exactly_b() {
+        let device = crate::test_util::cpu();
+        let grid = uneven_grid(3);
+        for kind in KINDS {
+            let mut model = config(kind).init(&grid, &device, 2).unwrap();
+            let u = Tensor::<1>::from_floats([-2.0f32, 0.0, 3.0], &device);
+            let before = values(model.forward(u.clone(), grid.to_tensor(&device)).unwrap());
+            let b = [0.75f32, -0.25, -1.5];
+            model.set_baseline(&b).unwrap();
+            let after = values(model.forward(u, grid.to_tensor(&device)).unwrap());
+            for (i, (x, y)) in before.iter().zip(&after).enumerate() {
+                // One f32 addition: exact up to the rounding of the sum.
+                assert!(
+                    (y - (x + b[i % 3])).abs() <= 1e-6,
+                    "{kind:?} [{i}]: {x} + b → {y}"
+                );
+            }
+            for bad in [&[0.0f32, 1.0][..], &[0.0, f32::NAN, 1.0]] {
+                assert_eq!(model.set_baseline(bad).unwrap_err().field(), "baseline");
+            }
+        }
     }
 
     #[test]

@@ -61,13 +61,18 @@ impl Tokenizer {
         }
     }
 
-    /// γ_u(u^(c)) for `u_c` [K] → [K, d].
-    pub fn encode_density(&self, u_c: Tensor<1>) -> Tensor<2> {
-        let [k] = u_c.dims();
-        let u_hat = condition_raw_density(u_c, self.u_scale).reshape([k, 1]);
+    /// The conditioned raw density û = u / (s + |u|) ∈ [−1, 1] of `u_c` [K]: the only way a
+    /// Gaussian enters the network.
+    pub fn condition(&self, u_c: Tensor<1>) -> Tensor<1> {
+        condition_raw_density(u_c, self.u_scale)
+    }
+
+    /// γ_u for conditioned densities `u_hat` [K] → [K, d].
+    pub fn encode_density(&self, u_hat: Tensor<1>) -> Tensor<2> {
+        let [k] = u_hat.dims();
         silu(
             self.density
-                .forward(fourier_features(u_hat, self.frequencies)),
+                .forward(fourier_features(u_hat.reshape([k, 1]), self.frequencies)),
         )
     }
 
@@ -81,9 +86,10 @@ impl Tokenizer {
         )
     }
 
-    /// Tokens x_{i,m} = γ_u(u_i) + γ_s(τ_m): `[K, M, d]`, together with γ_s(τ) `[M, d]`.
-    pub fn forward(&self, u_c: Tensor<1>, tau: Tensor<1>) -> (Tensor<3>, Tensor<2>) {
-        let gu = self.encode_density(u_c);
+    /// Tokens x_{i,m} = γ_u(û_i) + γ_s(τ_m) for conditioned densities `u_hat` [K]: `[K, M, d]`,
+    /// together with γ_s(τ) `[M, d]`.
+    pub fn forward(&self, u_hat: Tensor<1>, tau: Tensor<1>) -> (Tensor<3>, Tensor<2>) {
+        let gu = self.encode_density(u_hat);
         let gs = self.encode_spectral(tau);
         let tokens = gu
             .unsqueeze_dim::<3>(1)

@@ -45,8 +45,12 @@ pub struct LogRecord {
 /// The run clock and the open log file.
 pub struct RunLog {
     start: Instant,
+    /// Wall seconds already on the clock at `start` (a forked log continues its parent's time).
+    base_wall_s: f64,
     eval_s: f64,
     out: Option<(PathBuf, BufWriter<File>)>,
+    /// Every line written so far (for [`RunLog::fork`]).
+    lines: Vec<String>,
 }
 
 impl RunLog {
@@ -56,8 +60,10 @@ impl RunLog {
         let f = File::create(&path).map_err(|e| Error::io(&path, e))?;
         Ok(RunLog {
             start: Instant::now(),
+            base_wall_s: 0.0,
             eval_s: 0.0,
             out: Some((path, BufWriter::new(f))),
+            lines: Vec::new(),
         })
     }
 
@@ -65,13 +71,28 @@ impl RunLog {
     pub fn in_memory() -> Self {
         RunLog {
             start: Instant::now(),
+            base_wall_s: 0.0,
             eval_s: 0.0,
             out: None,
+            lines: Vec::new(),
         }
     }
 
+    /// A log in `dir` that continues this one: its file starts with this log's records and its
+    /// clocks count on from this log's current times. A stage-2 variant trained from a shared
+    /// stage-1 geometry thus reports the whole run, geometry included.
+    pub fn fork(&self, dir: &Path) -> Result<RunLog> {
+        let mut log = RunLog::create(dir)?;
+        log.base_wall_s = self.wall_s();
+        log.eval_s = self.eval_s;
+        for line in &self.lines {
+            log.write_line(line.clone())?;
+        }
+        Ok(log)
+    }
+
     pub fn wall_s(&self) -> f64 {
-        self.start.elapsed().as_secs_f64()
+        self.base_wall_s + self.start.elapsed().as_secs_f64()
     }
 
     pub fn train_s(&self) -> f64 {
@@ -87,13 +108,24 @@ impl RunLog {
     }
 
     pub fn write(&mut self, record: &LogRecord) -> Result<()> {
+        let line = serde_json::to_string(record).map_err(|e| {
+            let path = self
+                .out
+                .as_ref()
+                .map(|(p, _)| p.clone())
+                .unwrap_or_default();
+            Error::field(path, ".", e.to_string())
+        })?;
+        self.write_line(line)
+    }
+
+    fn write_line(&mut self, line: String) -> Result<()> {
         if let Some((path, w)) = &mut self.out {
-            let line = serde_json::to_string(record)
-                .map_err(|e| Error::field(path.as_path(), ".", e.to_string()))?;
             writeln!(w, "{line}")
                 .and_then(|_| w.flush())
                 .map_err(|e| Error::io(path.as_path(), e))?;
         }
+        self.lines.push(line);
         Ok(())
     }
 }

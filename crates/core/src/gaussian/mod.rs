@@ -10,6 +10,7 @@
 //! Units: the model lives in the normalised [`World`] (largest volume edge = 2, densities in
 //! units of the FDK's 99.9th percentile); outputs are converted back to mm and mm⁻¹.
 
+pub mod ablation;
 pub mod adam;
 pub mod config;
 pub mod densify;

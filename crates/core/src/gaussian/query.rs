@@ -16,7 +16,7 @@ use burn::tensor::{Device, Tensor};
 use ndarray::{Array3, Axis};
 use prism_gscnet::{Extrapolation, SpectralGrid, interpolate_curve};
 use prism_render::{ProjectOptions, project};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::fs;
 use std::path::Path;
 
@@ -100,7 +100,7 @@ pub struct Holdout<'a> {
 }
 
 /// Scores of one predicted (held-out) channel.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct HoldoutScore {
     pub label: String,
     pub tau: f64,

@@ -33,7 +33,7 @@ use ndarray::{Array3, ArrayView3, Axis, s};
 use prism_gscnet::SpectralGrid;
 use serde::Serialize;
 use std::fs;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Name of the per-stage summary in a run directory.
 pub const TRAIN_FILE: &str = "train.json";
@@ -55,95 +55,158 @@ pub fn run(
     out_dir: &Path,
     device: &Device,
 ) -> Result<Option<ReconReport>> {
-    config.validate()?;
-    scene.validate()?;
-    let unseen = warn_fov(scene)?;
-    let held = config.holdout_indices(scene)?;
-    let observed = scene_without(scene, &held);
-    let views = channel_training_views(&observed)?;
-    fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
-    write_resolved(out_dir, config)?;
-    let mut log = RunLog::create(out_dir)?;
-    let bar = progress_bar();
-    let mut stages = Vec::new();
-    let mut ctx = Ctx {
-        config,
-        scene: &observed,
-        full: scene,
-        views: &views,
-        out_dir,
-        device,
-        log: &mut log,
-        bar: &bar,
-        stages: &mut stages,
-    };
-    let (observed_vols, predicted) = match config.method {
+    let setup = Setup::new(config, scene)?;
+    let mut out = Output::create(out_dir, config, None)?;
+    let mut ctx = setup.ctx(config, &mut out, device);
+    let (observed, predicted) = match config.method {
         GaussianMethod::R2gs => (r2gs(&mut ctx)?, None),
-        GaussianMethod::Stage1 | GaussianMethod::FourDsg => spectral(&mut ctx, &held)?,
-    };
-    bar.finish_and_clear();
-    let train_s = log.train_s();
-    let summary = TrainSummary {
-        method: config.method.name(),
-        scene: &scene.name,
-        wall_s: log.wall_s(),
-        train_s,
-        stages: &stages,
-    };
-    let path = out_dir.join(TRAIN_FILE);
-    let json = serde_json::to_string_pretty(&summary)
-        .map_err(|e| Error::field(&path, ".", e.to_string()))?;
-    fs::write(&path, json + "\n").map_err(|e| Error::io(&path, e))?;
-    // Every channel of the scene: observed ones fitted, held-out ones predicted.
-    let mut vols = Vec::new();
-    let mut next_observed = observed_vols.into_iter();
-    let mut next_held = predicted.into_iter().flatten();
-    for (c, ch) in scene.channels.iter().enumerate() {
-        let v = if held.contains(&c) {
-            next_held.next()
-        } else {
-            next_observed.next()
+        GaussianMethod::Stage1 | GaussianMethod::FourDsg => {
+            let shared = geometry_stage(&mut ctx)?;
+            spectral_stage(&mut ctx, shared)?
         }
-        .expect("one volume per channel");
-        write_volume(out_dir, &ch.label, &v)?;
-        vols.push(v);
+    };
+    out.finish(config, &setup, observed, predicted)
+}
+
+/// One volume per channel (mm⁻¹, `[z][y][x]`).
+pub(super) type Volumes = Vec<Array3<f32>>;
+
+/// The scene as training sees it: held-out channels removed, training views per channel.
+pub(super) struct Setup<'a> {
+    /// The full scene (held-out channels included, for scoring predictions).
+    pub full: &'a Scene,
+    /// The scene without held-out channels.
+    pub observed: Scene,
+    /// Indices (in `full`) of the held-out channels.
+    pub held: Vec<usize>,
+    /// Training views of each observed channel.
+    pub views: Vec<Vec<usize>>,
+    /// Fraction of the volume outside the field of view (for the metrics' note).
+    pub unseen: f64,
+}
+
+impl<'a> Setup<'a> {
+    pub fn new(config: &GaussianConfig, scene: &'a Scene) -> Result<Self> {
+        config.validate()?;
+        scene.validate()?;
+        let unseen = warn_fov(scene)?;
+        let held = config.holdout_indices(scene)?;
+        let observed = scene_without(scene, &held);
+        let views = channel_training_views(&observed)?;
+        Ok(Setup {
+            full: scene,
+            observed,
+            held,
+            views,
+            unseen,
+        })
     }
-    if held.is_empty() {
-        write_metrics(scene, &vols, config.method.name(), train_s, unseen, out_dir)
-    } else {
-        // Held-out channels have no training views; score them on their own (holdout.json)
-        // and the observed ones in metrics.json.
-        let observed_vols: Vec<_> = (0..scene.n_channels())
-            .filter(|c| !held.contains(c))
-            .map(|c| vols[c].clone())
-            .collect();
+
+    pub fn ctx<'c>(
+        &'c self,
+        config: &'c GaussianConfig,
+        out: &'c mut Output,
+        device: &'c Device,
+    ) -> Ctx<'c> {
+        Ctx {
+            config,
+            scene: &self.observed,
+            full: self.full,
+            held: &self.held,
+            views: &self.views,
+            device,
+            out,
+        }
+    }
+}
+
+/// A run directory being filled: its log, progress bar and stage summaries.
+pub(super) struct Output {
+    pub dir: PathBuf,
+    pub log: RunLog,
+    pub bar: ProgressBar,
+    pub stages: Vec<StageReport>,
+}
+
+impl Output {
+    /// Create `dir` with `config.resolved.yaml` and a log; with `parent`, the log and the stage
+    /// summaries continue the parent's (a variant that reuses the parent's stage 1).
+    pub fn create(dir: &Path, config: &GaussianConfig, parent: Option<&Output>) -> Result<Self> {
+        fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        write_resolved(dir, config)?;
+        let (log, stages) = match parent {
+            Some(p) => (p.log.fork(dir)?, p.stages.clone()),
+            None => (RunLog::create(dir)?, Vec::new()),
+        };
+        Ok(Output {
+            dir: dir.to_path_buf(),
+            log,
+            bar: progress_bar(),
+            stages,
+        })
+    }
+
+    /// Write `train.json`, every channel's volume (observed ones fitted, held-out ones predicted)
+    /// and `metrics.json` for the observed channels (held-out ones are in `holdout.json`).
+    pub fn finish(
+        self,
+        config: &GaussianConfig,
+        setup: &Setup,
+        observed: Volumes,
+        predicted: Option<Volumes>,
+    ) -> Result<Option<ReconReport>> {
+        self.bar.finish_and_clear();
+        let train_s = self.log.train_s();
+        let summary = TrainSummary {
+            method: config.method.name(),
+            scene: &setup.full.name,
+            wall_s: self.log.wall_s(),
+            train_s,
+            stages: &self.stages,
+        };
+        let path = self.dir.join(TRAIN_FILE);
+        let json = serde_json::to_string_pretty(&summary)
+            .map_err(|e| Error::field(&path, ".", e.to_string()))?;
+        fs::write(&path, json + "\n").map_err(|e| Error::io(&path, e))?;
+        let mut next_observed = observed.into_iter();
+        let mut next_held = predicted.into_iter().flatten();
+        let mut fitted = Vec::new();
+        for (c, ch) in setup.full.channels.iter().enumerate() {
+            let held = setup.held.contains(&c);
+            let v = if held {
+                next_held.next()
+            } else {
+                next_observed.next()
+            }
+            .expect("one volume per channel");
+            write_volume(&self.dir, &ch.label, &v)?;
+            if !held {
+                fitted.push(v);
+            }
+        }
         write_metrics(
-            &observed,
-            &observed_vols,
+            &setup.observed,
+            &fitted,
             config.method.name(),
             train_s,
-            unseen,
-            out_dir,
+            setup.unseen,
+            &self.dir,
         )
     }
 }
 
-/// One volume per channel (mm⁻¹, `[z][y][x]`).
-type Volumes = Vec<Array3<f32>>;
-
 /// Everything a method runner needs.
-struct Ctx<'a> {
+pub(super) struct Ctx<'a> {
     config: &'a GaussianConfig,
     /// The scene without held-out channels (what training sees).
     scene: &'a Scene,
     /// The full scene (held-out channels included, for scoring predictions).
     full: &'a Scene,
+    /// Held-out channel indices in `full`.
+    held: &'a [usize],
     views: &'a [Vec<usize>],
-    out_dir: &'a Path,
     device: &'a Device,
-    log: &'a mut RunLog,
-    bar: &'a ProgressBar,
-    stages: &'a mut Vec<StageReport>,
+    out: &'a mut Output,
 }
 
 impl Ctx<'_> {
@@ -155,8 +218,9 @@ impl Ctx<'_> {
         stage: &Stage,
         curve: Option<&mut CurveFit>,
     ) -> Result<()> {
-        let r = train(model, sup, eval, stage, curve, self.log, self.bar)?;
-        self.stages.push(r);
+        let o = &mut *self.out;
+        let r = train(model, sup, eval, stage, curve, &mut o.log, &o.bar)?;
+        o.stages.push(r);
         Ok(())
     }
 
@@ -351,14 +415,14 @@ fn r2gs(ctx: &mut Ctx) -> Result<Vec<Array3<f32>>> {
         let stem = format!("gaussians-{}", file_stem(&ch.label));
         let info = ctx.info(&[c]);
         save_model(
-            &ctx.out_dir.join(format!("{stem}.safetensors")),
+            &ctx.out.dir.join(format!("{stem}.safetensors")),
             &model,
             None,
             &world,
             &info,
         )?;
         write_ply(
-            &ctx.out_dir.join(format!("{stem}.ply")),
+            &ctx.out.dir.join(format!("{stem}.ply")),
             &model,
             None,
             &world,
@@ -414,14 +478,19 @@ fn structural(config: &GaussianConfig, scene: &Scene) -> Result<(Vec<usize>, Vec
     }
 }
 
-/// 4D-SG: the shared geometry from the structural projection, then per-channel densities —
-/// directly (`4dsg-stage1`) or through the curve model (`4dsg`, stage 2). Returns the observed
-/// channels' volumes and, for `held` channels, the predicted ones.
-fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)> {
+/// 4D-SG stage 1's result: the shared geometry (with the common raw density) and its world.
+#[derive(Clone)]
+pub(super) struct SharedGeometry {
+    pub model: GaussianModel,
+    pub world: World,
+    /// The views of the structural projections.
+    pub views: Vec<usize>,
+}
+
+/// 4D-SG stage 1: the shared geometry and common density from the structural projection.
+pub(super) fn geometry_stage(ctx: &mut Ctx) -> Result<SharedGeometry> {
     let (config, scene, device) = (ctx.config, ctx.scene, ctx.device);
     let geometry = &scene.geometry;
-    let m = scene.n_channels();
-    // Stage 1: geometry (and common density) on the structural projection.
     let (sviews, simages) = structural(config, scene)?;
     let mut stack = Array3::<f32>::zeros((
         geometry.views(),
@@ -452,6 +521,28 @@ fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)>
     });
     let stage = base_stage(config, scene, "geometry", "structural", &world);
     ctx.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
+    Ok(SharedGeometry {
+        model,
+        world,
+        views: sviews,
+    })
+}
+
+/// 4D-SG on a trained shared geometry: per-channel densities, directly (`4dsg-stage1`) or
+/// through the curve model (`4dsg`, stage 2). Saves the model and returns the observed
+/// channels' volumes and, for held-out channels, the predicted ones.
+pub(super) fn spectral_stage(
+    ctx: &mut Ctx,
+    shared: SharedGeometry,
+) -> Result<(Volumes, Option<Volumes>)> {
+    let (config, scene, device) = (ctx.config, ctx.scene, ctx.device);
+    let geometry = &scene.geometry;
+    let m = scene.n_channels();
+    let SharedGeometry {
+        mut model,
+        world,
+        views: sviews,
+    } = shared;
 
     // Stage 2 supervision: every available channel at every training view.
     let all_views: Vec<usize> = scene
@@ -486,9 +577,13 @@ fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)>
             let grid = SpectralGrid::new(info.tau.iter().map(|&t| t as f32).collect())
                 .map_err(|e| Error::invalid("channels", e.to_string()))?;
             let ad = device.clone().autodiff();
-            let net = s2
+            let mut net = s2
                 .curve_model
                 .init(&grid, &ad, config.seed)
+                .map_err(|e| Error::invalid("stage2.curve_model", e.to_string()))?;
+            let baseline =
+                spectral_baseline(&model.to_host().densities, &channel_ratios(scene, &sviews));
+            net.set_baseline(&baseline)
                 .map_err(|e| Error::invalid("stage2.curve_model", e.to_string()))?;
             let mut fit = CurveFit {
                 net,
@@ -502,7 +597,7 @@ fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)>
                 learn: s2.freeze.learnable(),
                 densify: None,
                 seed: config.seed.wrapping_add(1),
-                ..base_stage(config, scene, "gscnet", "all", &world)
+                ..base_stage(config, scene, s2.curve_model.kind.name(), "all", &world)
             };
             ctx.train(&mut model, &sup, eval.as_ref(), &stage, Some(&mut fit))?;
             fit.raw_densities(&model)?
@@ -540,14 +635,14 @@ fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)>
     };
     let raw_host = super::host_values(&raw);
     save_model(
-        &ctx.out_dir.join("gaussians.safetensors"),
+        &ctx.out.dir.join("gaussians.safetensors"),
         &model,
         Some(raw_host.clone()),
         &world,
         &info,
     )?;
     write_ply(
-        &ctx.out_dir.join("gaussians.ply"),
+        &ctx.out.dir.join("gaussians.ply"),
         &model,
         Some(raw_host),
         &world,
@@ -557,7 +652,7 @@ fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)>
     let observed = (0..m)
         .map(|c| v.index_axis(Axis(0), c).to_owned())
         .collect();
-    let predicted = if held.is_empty() {
+    let predicted = if ctx.held.is_empty() {
         None
     } else {
         let hold = Holdout {
@@ -566,9 +661,23 @@ fn spectral(ctx: &mut Ctx, held: &[usize]) -> Result<(Volumes, Option<Volumes>)>
             world: &world,
             info: &info,
         };
-        Some(score_holdout(&hold, ctx.full, held, ctx.out_dir)?)
+        Some(score_holdout(&hold, ctx.full, ctx.held, &ctx.out.dir)?)
     };
     Ok((observed, predicted))
+}
+
+/// Raw-density offsets b [M] that turn the structural densities into each channel's, for the
+/// curve model's baseline: softplus(ū + b_m) = r_m·softplus(ū) at the median raw density ū
+/// (`ratios` from [`channel_ratios`]).
+fn spectral_baseline(raw: &[f32], ratios: &[f64]) -> Vec<f32> {
+    let mut sorted: Vec<f32> = raw.iter().copied().filter(|v| v.is_finite()).collect();
+    sorted.sort_by(f32::total_cmp);
+    let u = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0) as f64;
+    let a = softplus(u);
+    ratios
+        .iter()
+        .map(|&r| (inverse_softplus(a * r) - u) as f32)
+        .collect()
 }
 
 /// Mean line integral of each channel over the structural views, divided by the structural mean.

@@ -221,7 +221,7 @@ fn four_dsg_trains_the_curve_model_and_predicts_a_held_out_channel() {
             "metrics.json holds the observed channels"
         );
         let log = losses(dir.path());
-        let s2: Vec<_> = log.iter().filter(|r| r.0 == "gscnet").collect();
+        let s2: Vec<_> = log.iter().filter(|r| r.0 == kind.name()).collect();
         assert_eq!(s2.len(), 1, "{log:?}");
         let holdout: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(dir.path().join(query::HOLDOUT_FILE)).unwrap(),

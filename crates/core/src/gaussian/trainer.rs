@@ -208,7 +208,7 @@ pub(crate) fn render_error(e: prism_render::RenderError) -> Error {
 
 /// The settings of one training stage.
 pub struct Stage<'a> {
-    /// Name in the log (`r2gs`, `geometry`, `densities`).
+    /// Name in the log (`r2gs`, `geometry`, `densities`, and `gscnet` or `mlp` for stage 2).
     pub name: &'a str,
     /// What is fitted, for the log (`structural`, a channel label, `all`).
     pub channel: &'a str,
