@@ -260,23 +260,9 @@ fn forward_block<F: MulAdd>(inp: &ScanInputs, sh: &Shared, first: usize, ys: &mu
     }
 }
 
-/// [`forward_block`] compiled with AVX2 and FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn forward_block_avx2(inp: &ScanInputs, sh: &Shared, first: usize, ys: &mut [f32]) {
-    forward_block::<math::Fused>(inp, sh, first, ys)
-}
-
-/// [`forward_block`], 8-wide with fused multiply-adds when `wide` (the caller checked the CPU),
-/// else for the build's baseline target.
-fn forward_block_dispatch(wide: bool, inp: &ScanInputs, sh: &Shared, first: usize, ys: &mut [f32]) {
-    #[cfg(target_arch = "x86_64")]
-    if wide {
-        // SAFETY: `wide` is only set after `has_avx2` confirmed AVX2 and FMA.
-        return unsafe { forward_block_avx2(inp, sh, first, ys) };
-    }
-    let _ = wide;
-    forward_block::<Separate>(inp, sh, first, ys)
+dispatched! {
+    /// [`forward_block`], 8-wide with fused multiply-adds when `wide`.
+    fn forward_block_on => forward_block(inp: &ScanInputs, sh: &Shared, first: usize, ys: &mut [f32])
 }
 
 /// Runs the scan: `y` `[K, M, E]`.
@@ -295,7 +281,7 @@ fn scan_forward_on(inp: &ScanInputs, wide: bool) -> Vec<f32> {
     let sh = inp.shared();
     y.par_chunks_mut(BLOCK * m * e)
         .enumerate()
-        .for_each(|(blk, ys)| forward_block_dispatch(wide, inp, &sh, blk * BLOCK, ys));
+        .for_each(|(blk, ys)| forward_block_on(wide, inp, &sh, blk * BLOCK, ys));
     y
 }
 
@@ -510,30 +496,15 @@ fn backward_block<F: MulAdd>(
     }
 }
 
-/// [`backward_block`] compiled with AVX2 and FMA.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn backward_block_avx2(inp: &ScanInputs, sh: &Shared, gy: &[f32], first: usize, g: BlockGrads) {
-    backward_block::<math::Fused>(inp, sh, gy, first, g)
-}
-
-/// [`backward_block`], 8-wide with fused multiply-adds when `wide` (the caller checked the CPU),
-/// else for the build's baseline target.
-fn backward_block_dispatch(
-    wide: bool,
-    inp: &ScanInputs,
-    sh: &Shared,
-    gy: &[f32],
-    first: usize,
-    g: BlockGrads,
-) {
-    #[cfg(target_arch = "x86_64")]
-    if wide {
-        // SAFETY: `wide` is only set after `has_avx2` confirmed AVX2 and FMA.
-        return unsafe { backward_block_avx2(inp, sh, gy, first, g) };
-    }
-    let _ = wide;
-    backward_block::<Separate>(inp, sh, gy, first, g)
+dispatched! {
+    /// [`backward_block`], 8-wide with fused multiply-adds when `wide`.
+    fn backward_block_on => backward_block(
+        inp: &ScanInputs,
+        sh: &Shared,
+        gy: &[f32],
+        first: usize,
+        g: BlockGrads,
+    )
 }
 
 /// Gradients of ⟨`gy`, scan(inp)⟩ (`gy` `[K, M, E]`).
@@ -572,7 +543,7 @@ fn scan_backward_on(inp: &ScanInputs, gy: &[f32], wide: bool) -> ScanGrads {
                     a: &mut ga,
                     d: &mut gd,
                 };
-                backward_block_dispatch(wide, inp, &sh, gy, blk * BLOCK, g);
+                backward_block_on(wide, inp, &sh, gy, blk * BLOCK, g);
                 [gb, gc, ga, gd]
             })
             .collect();
