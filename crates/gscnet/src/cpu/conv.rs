@@ -44,9 +44,21 @@ fn check(dims: ConvDims, u: &[f32], w: &[f32], bias: &[f32]) {
     );
 }
 
-/// Pre-activations p `[M, E]` of one Gaussian's tile `u` `[M, E]`.
+/// The weights tap-major, `[J, E]` (from `[E, J]`), so the kernels' loops over features read
+/// them contiguously.
+fn taps_major(w: &[f32], e: usize, j: usize) -> Vec<f32> {
+    let mut wt = vec![0.0f32; e * j];
+    for (ei, row) in w.chunks_exact(j.max(1)).enumerate() {
+        for (tap, &v) in row.iter().enumerate() {
+            wt[tap * e + ei] = v;
+        }
+    }
+    wt
+}
+
+/// Pre-activations p `[M, E]` of one Gaussian's tile `u` `[M, E]` (weights `wt` `[J, E]`).
 #[inline(always)]
-fn pre_activation(dims: ConvDims, u: &[f32], w: &[f32], bias: &[f32], p: &mut [f32]) {
+fn pre_activation(dims: ConvDims, u: &[f32], wt: &[f32], bias: &[f32], p: &mut [f32]) {
     let ConvDims { m, e, j, .. } = dims;
     let r = j / 2;
     for mi in 0..m {
@@ -58,8 +70,9 @@ fn pre_activation(dims: ConvDims, u: &[f32], w: &[f32], bias: &[f32], p: &mut [f
                 continue;
             };
             let row = &u[src * e..(src + 1) * e];
-            for ei in 0..e {
-                out[ei] += w[ei * j + tap] * row[ei];
+            let w = &wt[tap * e..(tap + 1) * e];
+            for ((o, &w), &u) in out.iter_mut().zip(w).zip(row) {
+                *o += w * u;
             }
         }
     }
@@ -67,10 +80,10 @@ fn pre_activation(dims: ConvDims, u: &[f32], w: &[f32], bias: &[f32], p: &mut [f
 
 /// SiLU(conv(u)) of the Gaussians of one rayon block (`us`, `ys` `[count, M, E]`).
 #[inline(always)]
-fn forward_block<F: MulAdd>(dims: ConvDims, us: &[f32], w: &[f32], bias: &[f32], ys: &mut [f32]) {
+fn forward_block<F: MulAdd>(dims: ConvDims, us: &[f32], wt: &[f32], bias: &[f32], ys: &mut [f32]) {
     let me = dims.m * dims.e;
     for (yk, uk) in ys.chunks_mut(me).zip(us.chunks(me)) {
-        pre_activation(dims, uk, w, bias, yk);
+        pre_activation(dims, uk, wt, bias, yk);
         for v in yk.iter_mut() {
             *v *= math::sigmoid::<F>(*v);
         }
@@ -82,7 +95,7 @@ dispatched! {
     fn forward_block_on => forward_block(
         dims: ConvDims,
         us: &[f32],
-        w: &[f32],
+        wt: &[f32],
         bias: &[f32],
         ys: &mut [f32],
     )
@@ -107,9 +120,10 @@ fn conv_silu_forward_on(
     if me == 0 {
         return y;
     }
+    let wt = taps_major(w, dims.e, dims.j);
     y.par_chunks_mut(BLOCK * me)
         .zip(u.par_chunks(BLOCK * me))
-        .for_each(|(ys, us)| forward_block_on(wide, dims, us, w, bias, ys));
+        .for_each(|(ys, us)| forward_block_on(wide, dims, us, &wt, bias, ys));
     y
 }
 
@@ -119,19 +133,19 @@ fn conv_silu_forward_on(
 fn backward_block<F: MulAdd>(
     dims: ConvDims,
     (us, gys): (&[f32], &[f32]),
-    w: &[f32],
+    wt: &[f32],
     bias: &[f32],
     gus: &mut [f32],
 ) -> (Vec<f32>, Vec<f32>) {
     let ConvDims { m, e, j, .. } = dims;
     let me = m * e;
     let r = j / 2;
-    let mut gw = vec![0.0f32; e * j];
+    let mut gwt = vec![0.0f32; j * e];
     let mut gbias = vec![0.0f32; e];
     let mut gp = vec![0.0f32; me];
     for ((guk, uk), gyk) in gus.chunks_mut(me).zip(us.chunks(me)).zip(gys.chunks(me)) {
         // ∂L/∂p = ḡ · SiLU'(p), SiLU'(p) = σ(p)(1 + p(1 − σ(p))).
-        pre_activation(dims, uk, w, bias, &mut gp);
+        pre_activation(dims, uk, wt, bias, &mut gp);
         for (g, &gyv) in gp.iter_mut().zip(gyk) {
             let s = math::sigmoid::<F>(*g);
             *g = gyv * s * (1.0 + *g * (1.0 - s));
@@ -147,14 +161,18 @@ fn backward_block<F: MulAdd>(
                 };
                 let urow = &uk[src * e..(src + 1) * e];
                 let gurow = &mut guk[src * e..(src + 1) * e];
-                for ei in 0..e {
-                    gurow[ei] += w[ei * j + tap] * gprow[ei];
-                    gw[ei * j + tap] += gprow[ei] * urow[ei];
+                let w = &wt[tap * e..(tap + 1) * e];
+                let gw = &mut gwt[tap * e..(tap + 1) * e];
+                for ((((gu, gw), &w), &g), &u) in
+                    gurow.iter_mut().zip(gw).zip(w).zip(gprow).zip(urow)
+                {
+                    *gu += w * g;
+                    *gw += g * u;
                 }
             }
         }
     }
-    (gw, gbias)
+    (gwt, gbias)
 }
 
 dispatched! {
@@ -162,7 +180,7 @@ dispatched! {
     fn backward_block_on => backward_block(
         dims: ConvDims,
         ugy: (&[f32], &[f32]),
-        w: &[f32],
+        wt: &[f32],
         bias: &[f32],
         gus: &mut [f32],
     ) -> (Vec<f32>, Vec<f32>)
@@ -192,19 +210,26 @@ fn conv_silu_backward_on(
     let ConvDims { e, j, .. } = dims;
     let me = dims.m * e;
     let mut gu = vec![0.0f32; u.len()];
+    let wt = taps_major(w, e, j);
     let mut partials: Vec<(Vec<f32>, Vec<f32>)> = Vec::new();
     if me > 0 {
         partials = gu
             .par_chunks_mut(BLOCK * me)
             .zip(u.par_chunks(BLOCK * me))
             .zip(gy.par_chunks(BLOCK * me))
-            .map(|((gus, us), gys)| backward_block_on(wide, dims, (us, gys), w, bias, gus))
+            .map(|((gus, us), gys)| backward_block_on(wide, dims, (us, gys), &wt, bias, gus))
             .collect();
     }
-    let (gw, gbias): (Vec<_>, Vec<_>) = partials.into_iter().unzip();
+    let (gwt, gbias): (Vec<_>, Vec<_>) = partials.into_iter().unzip();
+    // ∂w `[J, E]` back to `[E, J]`.
+    let gwt = sum_partials(gwt, j * e);
+    let mut gw = vec![0.0f32; e * j];
+    for (i, g) in gw.iter_mut().enumerate() {
+        *g = gwt[(i % j) * e + i / j];
+    }
     ConvGrads {
         u: gu,
-        w: sum_partials(gw, e * j),
+        w: gw,
         bias: sum_partials(gbias, e),
     }
 }

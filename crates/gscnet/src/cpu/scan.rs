@@ -5,7 +5,7 @@
 //!
 //! The kernels take 8 consecutive features e of one Gaussian at a time as lane vectors (B and C
 //! are shared by the features), so the loops over the state index n are vertical arithmetic that
-//! vectorises; the decays Ā use the branch-free [`super::math::exp`]. Each rayon block runs
+//! vectorises; the decays Ā use a branch-free polynomial `exp` (`cpu::math`). Each rayon block runs
 //! either a portable build or one compiled with AVX2 + FMA, chosen at run time per scan call.
 //!
 //! Forward: one pass over m per (k, feature chunk) with the N state vectors in scratch.
@@ -53,7 +53,7 @@ pub struct ScanInputs<'a> {
 
 /// softplus(z) = ln(1 + e^z), with z returned above 20 (as Burn's `softplus`: the correction
 /// e^{−z} < 2e-9 is below f32 resolution there) and 0 below −87. The kernels' own branch-free
-/// version ([`math::softplus`]), unfused.
+/// version (`cpu::math::softplus`), unfused.
 #[inline]
 pub fn softplus(z: f32) -> f32 {
     math::softplus::<Separate>(z)
