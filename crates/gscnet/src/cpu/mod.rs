@@ -6,11 +6,53 @@
 //! gradients of shared parameters) use a fixed block size and an ordered sum, so results do not
 //! depend on the thread count or on scheduling.
 
+/// Defines `fn $name(wide: bool, args..)` that runs the generic kernel `$kernel::<Fused>` compiled
+/// with AVX2 and FMA when `wide`, else `$kernel::<Separate>` for the build's baseline target. The
+/// kernel is `#[inline(always)]`, so its whole body is compiled into both variants; they differ in
+/// rounding only. Callers pass `wide = has_avx2()` (once per kernel call), or a test's choice.
+macro_rules! dispatched {
+    ($(#[$doc:meta])* fn $name:ident => $kernel:ident($($arg:ident: $ty:ty),* $(,)?)
+        $(-> $ret:ty)?) => {
+        $(#[$doc])*
+        #[allow(clippy::too_many_arguments)]
+        fn $name(wide: bool, $($arg: $ty),*) $(-> $ret)? {
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,fma")]
+            #[allow(clippy::too_many_arguments)]
+            fn avx2($($arg: $ty),*) $(-> $ret)? {
+                $kernel::<$crate::cpu::math::Fused>($($arg),*)
+            }
+            #[cfg(target_arch = "x86_64")]
+            if wide {
+                // SAFETY: `wide` is only set where `has_avx2` confirmed AVX2 and FMA.
+                return unsafe { avx2($($arg),*) };
+            }
+            let _ = wide;
+            $kernel::<$crate::cpu::math::Separate>($($arg),*)
+        }
+    };
+}
+
 pub mod conv;
+mod math;
 pub mod scan;
 
 /// Gaussians per rayon task: large enough to amortise scheduling, small enough to balance.
 pub(crate) const BLOCK: usize = 256;
+
+/// Whether the running CPU has AVX2 and FMA (checked once per process), so the kernels may take
+/// their `target_feature(enable = "avx2,fma")` variants.
+pub(crate) fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        *HAS.get_or_init(|| is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
 
 /// Element-wise sum of per-block partial gradients, in block order (deterministic).
 pub(crate) fn sum_partials(partials: Vec<Vec<f32>>, len: usize) -> Vec<f32> {
@@ -21,10 +63,4 @@ pub(crate) fn sum_partials(partials: Vec<Vec<f32>>, len: usize) -> Vec<f32> {
         }
     }
     total
-}
-
-/// Logistic sigmoid σ(v) = 1 / (1 + e^{−v}), finite for every finite or infinite `v`.
-#[inline]
-pub(crate) fn sigmoid(v: f32) -> f32 {
-    1.0 / (1.0 + (-v).exp())
 }
