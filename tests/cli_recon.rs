@@ -118,13 +118,19 @@ channels:
   - { kind: mono, kev: 90 }
 "#;
 
-#[test]
-fn four_dsg_with_a_held_out_channel_then_queries() {
+/// A temporary directory holding the simulated [`SPECTRAL_SCENE`] (in `<dir>/scene`).
+fn spectral_scene() -> (tempfile::TempDir, std::path::PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("scene.yaml");
     std::fs::write(&cfg, SPECTRAL_SCENE).unwrap();
     let scene = dir.path().join("scene");
     assert!(prism(&["simulate", path(&cfg), "-o", path(&scene)]).0);
+    (dir, scene)
+}
+
+#[test]
+fn four_dsg_with_a_held_out_channel_then_queries() {
+    let (dir, scene) = spectral_scene();
     let rc = dir.path().join("4dsg.yaml");
     std::fs::write(
         &rc,
@@ -177,11 +183,7 @@ fn four_dsg_with_a_held_out_channel_then_queries() {
 
 #[test]
 fn ablation_runs_every_variant_from_one_stage_one() {
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("scene.yaml");
-    std::fs::write(&cfg, SPECTRAL_SCENE).unwrap();
-    let scene = dir.path().join("scene");
-    assert!(prism(&["simulate", path(&cfg), "-o", path(&scene)]).0);
+    let (dir, scene) = spectral_scene();
     let rc = dir.path().join("4dsg.yaml");
     std::fs::write(
         &rc,

@@ -97,6 +97,27 @@ impl CurveModel {
         Ok(())
     }
 
+    /// Condition the raw density around `centre` with scale `scale` (raw-density units), e.g.
+    /// the stage-1 distribution's median and spread, so the Fourier features resolve the range
+    /// the Gaussians occupy instead of the fixed û = u/(s + |u|).
+    ///
+    /// Errors: a non-finite centre, or a scale that is not finite and > 0 (field `u_scale`).
+    pub fn set_density_conditioning(&mut self, centre: f32, scale: f32) -> Result<()> {
+        if !centre.is_finite() || !(scale.is_finite() && scale > 0.0) {
+            return Err(Error::invalid(
+                "u_scale",
+                format!(
+                    "conditioning needs a finite centre and a scale > 0, got {centre}, {scale}"
+                ),
+            ));
+        }
+        match &mut self.net {
+            CurveNet::Gscnet(net) => net.tokenizer.set_conditioning(centre, scale),
+            CurveNet::Mlp(net) => net.tokenizer.set_conditioning(centre, scale),
+        }
+        Ok(())
+    }
+
     fn tokenizer(&self) -> &crate::tokenizer::Tokenizer {
         match &self.net {
             CurveNet::Gscnet(net) => &net.tokenizer,
@@ -277,6 +298,36 @@ mod tests {
                 g_scale > 0.0 && g_err <= 2e-2 * g_scale,
                 "{kind:?}: {g_err} vs {g_scale}"
             );
+        }
+    }
+
+    #[test]
+    fn conditioning_around_a_centre_is_a_shift_of_the_input() {
+        let device = crate::test_util::cpu();
+        let grid = uneven_grid(3);
+        for kind in KINDS {
+            let plain = config(kind).init(&grid, &device, 4).unwrap();
+            let mut centred = config(kind).init(&grid, &device, 4).unwrap();
+            centred.set_density_conditioning(-3.0, 4.0).unwrap();
+            let u = [-5.0f32, -3.0, -1.5, 0.5];
+            let shifted = u.map(|v| v + 3.0);
+            let a = plain
+                .forward(
+                    Tensor::from_floats(shifted, &device),
+                    grid.to_tensor(&device),
+                )
+                .unwrap();
+            let b = centred
+                .forward(Tensor::from_floats(u, &device), grid.to_tensor(&device))
+                .unwrap();
+            for (x, y) in values(a).iter().zip(values(b)) {
+                // u − c and (u + 3) − 0 round differently by at most an ulp of u.
+                assert!((x - y).abs() <= 1e-5, "{kind:?}: {x} vs {y}");
+            }
+            for (c, s) in [(f32::NAN, 1.0), (0.0, 0.0), (0.0, f32::INFINITY)] {
+                let e = centred.set_density_conditioning(c, s).unwrap_err();
+                assert_eq!(e.field(), "u_scale");
+            }
         }
     }
 

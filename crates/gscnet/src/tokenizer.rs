@@ -42,6 +42,8 @@ pub struct Tokenizer {
     spectral: Linear,
     frequencies: usize,
     u_scale: f32,
+    /// Centre c of the conditioning (0 unless set from data): û = (u − c)/(s + |u − c|).
+    u_centre: f32,
 }
 
 impl Tokenizer {
@@ -58,13 +60,21 @@ impl Tokenizer {
             spectral: init::linear(rng, features, width, true, 1.0, device),
             frequencies,
             u_scale,
+            u_centre: 0.0,
         }
     }
 
-    /// The conditioned raw density û = u / (s + |u|) ∈ [−1, 1] of `u_c` [K]: the only way a
-    /// Gaussian enters the network.
+    /// Condition around `centre` with scale `scale` (both in raw-density units; the caller
+    /// checks they are finite and `scale` > 0).
+    pub(crate) fn set_conditioning(&mut self, centre: f32, scale: f32) {
+        self.u_centre = centre;
+        self.u_scale = scale;
+    }
+
+    /// The conditioned raw density û = (u − c)/(s + |u − c|) ∈ [−1, 1] of `u_c` [K] (c = 0 and
+    /// s = `u_scale` unless set from data): the only way a Gaussian enters the network.
     pub fn condition(&self, u_c: Tensor<1>) -> Tensor<1> {
-        condition_raw_density(u_c, self.u_scale)
+        condition_raw_density(u_c.sub_scalar(self.u_centre), self.u_scale)
     }
 
     /// γ_u for conditioned densities `u_hat` [K] → [K, d].

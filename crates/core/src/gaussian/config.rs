@@ -140,6 +140,9 @@ pub struct Stage2Config {
     /// Adam learning rate of the network (log-linear decay).
     pub lr_network: LogLinear,
     pub freeze: Freeze,
+    /// Condition the network's density input on the stage-1 raw densities (centre: median,
+    /// scale: half the 10–90 % range) instead of the fixed û = u/(s + |u|).
+    pub condition_on_stage1: bool,
 }
 
 impl Default for Stage2Config {
@@ -153,6 +156,7 @@ impl Default for Stage2Config {
                 end: 1e-4,
             },
             freeze: Freeze::default(),
+            condition_on_stage1: false,
         }
     }
 }

@@ -581,10 +581,15 @@ pub(super) fn spectral_stage(
                 .curve_model
                 .init(&grid, &ad, config.seed)
                 .map_err(|e| Error::invalid("stage2.curve_model", e.to_string()))?;
-            let baseline =
-                spectral_baseline(&model.to_host().densities, &channel_ratios(scene, &sviews));
+            let u = sorted_finite(model.to_host().densities);
+            let baseline = spectral_baseline(&u, &channel_ratios(scene, &sviews));
             net.set_baseline(&baseline)
                 .map_err(|e| Error::invalid("stage2.curve_model", e.to_string()))?;
+            if s2.condition_on_stage1 {
+                let (lo, mid, hi) = (quantile(&u, 0.1), quantile(&u, 0.5), quantile(&u, 0.9));
+                net.set_density_conditioning(mid, ((hi - lo) / 2.0).max(0.1))
+                    .map_err(|e| Error::invalid("stage2.curve_model", e.to_string()))?;
+            }
             let mut fit = CurveFit {
                 net,
                 optim: AdamConfig::new().init(),
@@ -666,13 +671,24 @@ pub(super) fn spectral_stage(
     Ok((observed, predicted))
 }
 
+/// The finite values of `v`, ascending.
+fn sorted_finite(mut v: Vec<f32>) -> Vec<f32> {
+    v.retain(|x| x.is_finite());
+    v.sort_by(f32::total_cmp);
+    v
+}
+
+/// The `q`-quantile (nearest rank) of ascending `sorted` (0 when empty).
+fn quantile(sorted: &[f32], q: f64) -> f32 {
+    let i = ((sorted.len().saturating_sub(1)) as f64 * q).round() as usize;
+    sorted.get(i).copied().unwrap_or(0.0)
+}
+
 /// Raw-density offsets b [M] that turn the structural densities into each channel's, for the
-/// curve model's baseline: softplus(ū + b_m) = r_m·softplus(ū) at the median raw density ū
-/// (`ratios` from [`channel_ratios`]).
-fn spectral_baseline(raw: &[f32], ratios: &[f64]) -> Vec<f32> {
-    let mut sorted: Vec<f32> = raw.iter().copied().filter(|v| v.is_finite()).collect();
-    sorted.sort_by(f32::total_cmp);
-    let u = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0) as f64;
+/// curve model's baseline: softplus(ū + b_m) = r_m·softplus(ū) at the median ū of the ascending
+/// raw densities `sorted` (`ratios` from [`channel_ratios`]).
+fn spectral_baseline(sorted: &[f32], ratios: &[f64]) -> Vec<f32> {
+    let u = quantile(sorted, 0.5) as f64;
     let a = softplus(u);
     ratios
         .iter()

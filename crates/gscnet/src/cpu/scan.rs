@@ -586,6 +586,54 @@ mod tests {
         (0..n).map(|_| rng.range(lo, hi) as f32).collect()
     }
 
+    /// Random scan inputs and an output gradient ḡ, drawn from `seed` in this order: x ∈
+    /// [−x_max, x_max], Δ (or raw z) ∈ `steps`, A_log ∈ `a_log`, B, C ∈ [−1, 1], D ∈ [0.5, 1.5],
+    /// ḡ ∈ [−1, 1].
+    struct Random {
+        x: Vec<f32>,
+        delta: Vec<f32>,
+        a_log: Vec<f32>,
+        b: Vec<f32>,
+        c: Vec<f32>,
+        d: Vec<f32>,
+        gy: Vec<f32>,
+    }
+
+    impl Random {
+        fn new(
+            dims: ScanDims,
+            seed: u64,
+            x_max: f64,
+            steps: (f64, f64),
+            a_log: (f64, f64),
+        ) -> Self {
+            let ScanDims { k, m, e, n } = dims;
+            let mut rng = SeedStream::new(seed);
+            Random {
+                x: sample(&mut rng, k * m * e, -x_max, x_max),
+                delta: sample(&mut rng, k * m * e, steps.0, steps.1),
+                a_log: sample(&mut rng, e * n, a_log.0, a_log.1),
+                b: sample(&mut rng, k * m * n, -1.0, 1.0),
+                c: sample(&mut rng, k * m * n, -1.0, 1.0),
+                d: sample(&mut rng, e, 0.5, 1.5),
+                gy: sample(&mut rng, k * m * e, -1.0, 1.0),
+            }
+        }
+
+        fn inputs(&self, dims: ScanDims, softplus: bool) -> ScanInputs<'_> {
+            ScanInputs {
+                dims,
+                x: &self.x,
+                delta: &self.delta,
+                a_log: &self.a_log,
+                b: &self.b,
+                c: &self.c,
+                d: &self.d,
+                softplus,
+            }
+        }
+    }
+
     /// Gaussians are independent: a batch spanning several rayon blocks (K = 2.5 blocks) gives
     /// each Gaussian the outputs and gradients of a K = 1 run, and the shared parameters' gradients
     /// are the sums of the single runs' (f64 sum of K terms; the blocked f32 sum differs by
@@ -599,26 +647,13 @@ mod tests {
             n: 3,
         };
         let ScanDims { k, m, e, n } = dims;
-        let mut rng = SeedStream::new(5);
-        let x = sample(&mut rng, k * m * e, -1.0, 1.0);
-        let delta = sample(&mut rng, k * m * e, 0.05, 1.5);
-        let a_log = sample(&mut rng, e * n, -0.5, 1.0);
-        let b = sample(&mut rng, k * m * n, -1.0, 1.0);
-        let c = sample(&mut rng, k * m * n, -1.0, 1.0);
-        let d = sample(&mut rng, e, 0.5, 1.5);
-        let gy = sample(&mut rng, k * m * e, -1.0, 1.0);
-        let inp = ScanInputs {
-            dims,
-            x: &x,
-            delta: &delta,
-            a_log: &a_log,
-            b: &b,
-            c: &c,
-            d: &d,
-            softplus: false,
-        };
+        let r = Random::new(dims, 5, 1.0, (0.05, 1.5), (-0.5, 1.0));
+        let Random {
+            x, delta, b, c, gy, ..
+        } = &r;
+        let inp = r.inputs(dims, false);
         let y = scan_forward(&inp);
-        let g = scan_backward(&inp, &gy);
+        let g = scan_backward(&inp, gy);
         let (me, mn) = (m * e, m * n);
         let mut ga = vec![0.0f64; e * n];
         let mut gd = vec![0.0f64; e];
@@ -652,7 +687,7 @@ mod tests {
             );
         }
         // Deterministic: a second run is bit-identical.
-        let again = scan_backward(&inp, &gy);
+        let again = scan_backward(&inp, gy);
         assert_eq!((again.a_log, again.d), (g.a_log, g.d));
     }
 
@@ -710,25 +745,9 @@ mod tests {
             e: 11,
             n: 5,
         };
-        let ScanDims { k, m, e, n } = dims;
-        let mut rng = SeedStream::new(17);
-        let x = sample(&mut rng, k * m * e, -2.0, 2.0);
-        let z = sample(&mut rng, k * m * e, -4.0, 3.0);
-        let a_log = sample(&mut rng, e * n, -1.0, 1.5);
-        let b = sample(&mut rng, k * m * n, -1.0, 1.0);
-        let c = sample(&mut rng, k * m * n, -1.0, 1.0);
-        let d = sample(&mut rng, e, 0.5, 1.5);
-        let gy = sample(&mut rng, k * m * e, -1.0, 1.0);
-        let inp = ScanInputs {
-            dims,
-            x: &x,
-            delta: &z,
-            a_log: &a_log,
-            b: &b,
-            c: &c,
-            d: &d,
-            softplus: true,
-        };
+        let r = Random::new(dims, 17, 2.0, (-4.0, 3.0), (-1.0, 1.5));
+        let gy = &r.gy;
+        let inp = r.inputs(dims, true);
         let close = |wide: &[f32], portable: &[f32], what: &str| {
             let scale = portable.iter().fold(0.0f32, |a, v| a.max(v.abs()));
             assert!(scale > 0.0, "{what}: all zero");
@@ -745,8 +764,8 @@ mod tests {
             &scan_forward_on(&inp, false),
             "y",
         );
-        let gw = scan_backward_on(&inp, &gy, true);
-        let gp = scan_backward_on(&inp, &gy, false);
+        let gw = scan_backward_on(&inp, gy, true);
+        let gp = scan_backward_on(&inp, gy, false);
         close(&gw.x, &gp.x, "∂x");
         close(&gw.delta, &gp.delta, "∂z");
         close(&gw.a_log, &gp.a_log, "∂A_log");
