@@ -103,7 +103,7 @@ impl CurveModel {
     ///
     /// Errors: a non-finite centre, or a scale that is not finite and > 0 (field `u_scale`).
     pub fn set_density_conditioning(&mut self, centre: f32, scale: f32) -> Result<()> {
-        if !centre.is_finite() || !(scale.is_finite() && scale > 0.0) {
+        if !(centre.is_finite() && scale.is_finite() && scale > 0.0) {
             return Err(Error::invalid(
                 "u_scale",
                 format!(
