@@ -1,5 +1,8 @@
-//! `prism recon` for the Gaussian methods: `r2gs` (R²-Gaussian per channel) and `4dsg-stage1`
-//! (shared geometry from the structural projections, then per-channel densities on it).
+//! `prism recon` for the Gaussian methods: `r2gs` (R²-Gaussian per channel), `4dsg-stage1`
+//! (shared geometry from the structural projections, then per-channel densities on it) and
+//! `4dsg` (the same geometry, then the curve model's stage 2). Stage 1 ([`geometry_stage`]) and
+//! the spectral stage ([`spectral_stage`]) are separate steps, so [`super::ablation`] can train
+//! several stage-2 variants from one geometry.
 //!
 //! A run directory receives, besides the classic outputs (`<label>.npy` in mm⁻¹,
 //! `config.resolved.yaml`, `metrics.json`): `log.jsonl` (error vs time, see [`super::log`]),

@@ -315,3 +315,25 @@ fn three_channel_scene() -> crate::scene::Scene {
     s.validate().unwrap();
     s
 }
+
+/// The whole 4D-SG pipeline (stage 1, GSC-Net stage 2 with its fused scan/conv ops, holdout
+/// scoring) on the deprecated NdArray backend too: the custom ops are registered for both CPU
+/// backends, so this is the same code path as on Flex.
+#[cfg(feature = "ndarray")]
+#[test]
+fn stage_two_runs_on_the_ndarray_backend() {
+    let scene = three_channel_scene();
+    let mut cfg = tiny(GaussianMethod::FourDsg);
+    cfg.iterations = 8;
+    cfg.densify = None;
+    cfg.stage2.iterations = 6;
+    cfg.stage2.curve_model.width = 8;
+    cfg.stage2.curve_model.depth = 1;
+    let dir = tempfile::tempdir().unwrap();
+    let dev = burn::tensor::Device::ndarray();
+    let report = run::run(&cfg, &scene, dir.path(), &dev).unwrap().unwrap();
+    assert!(report.channels.iter().all(|c| c.psnr.is_finite()));
+    let log = losses(dir.path());
+    assert!(log.iter().any(|r| r.0 == "gscnet"), "{log:?}");
+    assert!(log.iter().all(|r| r.2.is_finite()), "{log:?}");
+}
