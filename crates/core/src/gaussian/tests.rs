@@ -330,6 +330,7 @@ fn stage_two_runs_on_the_ndarray_backend() {
     cfg.stage2.curve_model.width = 8;
     cfg.stage2.curve_model.depth = 1;
     let dir = tempfile::tempdir().unwrap();
+    #[allow(deprecated)] // burn-ndarray goes in Burn 0.23; until then our ops serve it too
     let dev = burn::tensor::Device::ndarray();
     let report = run::run(&cfg, &scene, dir.path(), &dev).unwrap().unwrap();
     assert!(report.channels.iter().all(|c| c.psnr.is_finite()));
