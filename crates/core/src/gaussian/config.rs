@@ -141,7 +141,9 @@ pub struct Stage2Config {
     pub lr_network: LogLinear,
     pub freeze: Freeze,
     /// Condition the network's density input on the stage-1 raw densities (centre: median,
-    /// scale: half the 10–90 % range) instead of the fixed û = u/(s + |u|).
+    /// scale: half the 10–90 % range) instead of the fixed û = u/(s + |u|) (default true: the
+    /// fixed form left the occupied raw densities in a fifth of û's range; measured on
+    /// phantom-3mono 40.37 dB against 36.22 dB).
     pub condition_on_stage1: bool,
 }
 
@@ -156,7 +158,7 @@ impl Default for Stage2Config {
                 end: 1e-4,
             },
             freeze: Freeze::default(),
-            condition_on_stage1: false,
+            condition_on_stage1: true,
         }
     }
 }
