@@ -157,6 +157,7 @@ pub fn ablate(
     let mut root = Output::create(&out_dir.join("geometry"), base, None)?;
     let shared = geometry_stage(&mut setup.ctx(base, &mut root, device))?;
     root.bar.finish_and_clear();
+    root.log.stop();
     let stage1_s = root.log.train_s();
     let mut rows = Vec::new();
     for v in study.variants(base) {

@@ -47,6 +47,8 @@ pub struct RunLog {
     start: Instant,
     /// Wall seconds already on the clock at `start` (a forked log continues its parent's time).
     base_wall_s: f64,
+    /// The wall clock's reading when [`RunLog::stop`] froze it.
+    stopped: Option<f64>,
     eval_s: f64,
     out: Option<(PathBuf, BufWriter<File>)>,
     /// Every line written so far (for [`RunLog::fork`]).
@@ -61,6 +63,7 @@ impl RunLog {
         Ok(RunLog {
             start: Instant::now(),
             base_wall_s: 0.0,
+            stopped: None,
             eval_s: 0.0,
             out: Some((path, BufWriter::new(f))),
             lines: Vec::new(),
@@ -72,15 +75,23 @@ impl RunLog {
         RunLog {
             start: Instant::now(),
             base_wall_s: 0.0,
+            stopped: None,
             eval_s: 0.0,
             out: None,
             lines: Vec::new(),
         }
     }
 
+    /// Freeze the clocks at their current readings (the end of a shared stage): later
+    /// [`RunLog::fork`]s all continue from here, however long after they are made.
+    pub fn stop(&mut self) {
+        self.stopped = Some(self.wall_s());
+    }
+
     /// A log in `dir` that continues this one: its file starts with this log's records and its
-    /// clocks count on from this log's current times. A stage-2 variant trained from a shared
-    /// stage-1 geometry thus reports the whole run, geometry included.
+    /// clocks count on from this log's times (frozen by [`RunLog::stop`], else current). A
+    /// stage-2 variant trained from a shared stage-1 geometry thus reports the whole run,
+    /// geometry included, and not the other variants' time.
     pub fn fork(&self, dir: &Path) -> Result<RunLog> {
         let mut log = RunLog::create(dir)?;
         log.base_wall_s = self.wall_s();
@@ -92,7 +103,8 @@ impl RunLog {
     }
 
     pub fn wall_s(&self) -> f64 {
-        self.base_wall_s + self.start.elapsed().as_secs_f64()
+        self.stopped
+            .unwrap_or_else(|| self.base_wall_s + self.start.elapsed().as_secs_f64())
     }
 
     pub fn train_s(&self) -> f64 {
@@ -127,5 +139,44 @@ impl RunLog {
         }
         self.lines.push(line);
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    /// Forks of a stopped log start from the stop time (not from when they are made) and carry
+    /// its records.
+    #[test]
+    fn forks_of_a_stopped_log_continue_from_the_stop() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut root = RunLog::create(dir.path()).unwrap();
+        let record = LogRecord {
+            stage: "geometry".into(),
+            channel: "structural".into(),
+            iter: 1,
+            wall_s: 0.0,
+            train_s: 0.0,
+            loss: LossTerms::default(),
+            n_gaussians: 3,
+            psnr: None,
+            ssim: None,
+        };
+        root.write(&record).unwrap();
+        root.stop();
+        let at_stop = root.wall_s();
+        std::thread::sleep(Duration::from_millis(300));
+        assert_eq!(root.wall_s(), at_stop, "a stopped clock does not run");
+        let sub = dir.path().join("variant");
+        std::fs::create_dir(&sub).unwrap();
+        let fork = root.fork(&sub).unwrap();
+        // The 300 ms spent before forking are not on the fork's clock.
+        let t = fork.wall_s();
+        assert!(t >= at_stop && t < at_stop + 0.2, "{t} vs {at_stop}");
+        let text = std::fs::read_to_string(sub.join(LOG_FILE)).unwrap();
+        assert_eq!(text.lines().count(), 1);
+        assert!(text.contains("\"geometry\""));
     }
 }
