@@ -343,10 +343,10 @@ fn row_gdy(s: &PixelSplat, dy: f32, cut2: f32) -> Option<f32> {
 struct SplatBlock<L> {
     /// Column offsets `x − mx` of the block's lanes (pixels).
     dx: L,
-    /// 1 on the splat's clipped columns, 0 elsewhere.
-    inside: L,
-    /// `−½ a` and `−½ cut²`.
+    /// `−½ a`.
     neg_half_a: L,
+    /// `−½ cut²` on the splat's clipped columns and `+∞` elsewhere, so one compare applies both
+    /// the cut-off and the clipping.
     neg_half_cut: L,
 }
 
@@ -355,35 +355,32 @@ impl<L: Lanes> SplatBlock<L> {
     /// to tile lanes `[l0, l1)`.
     #[inline(always)]
     fn new(s: &PixelSplat, c0: usize, h: usize, (l0, l1): (usize, usize), cut2: f32) -> Self {
-        let inside: [f32; HALF] = std::array::from_fn(|j| {
+        let cut: [f32; HALF] = std::array::from_fn(|j| {
             if (l0..l1).contains(&(h + j)) {
-                1.0
+                -0.5 * cut2
             } else {
-                0.0
+                f32::INFINITY
             }
         });
         Self {
             dx: L::splat(c0 as f32 - s.mx).add(L::load(block(&IOTA, h))),
-            inside: L::load(&inside),
             neg_half_a: L::splat(-0.5 * s.a),
-            neg_half_cut: L::splat(-0.5 * cut2),
+            neg_half_cut: L::load(&cut),
         }
     }
 
-    /// `G = exp(−½ dᵀ Σ₂D⁻¹ d)` on the block's lanes of row `dy = y − my` (pixels), exactly 0
-    /// beyond the cut-off (`dᵀ Σ₂D⁻¹ d > cut²`) and outside the clipped columns; `gdy` from
-    /// [`row_gdy`]. The quadratic form is `a (dx + β dy)² + γ dy²` (cancellation-free), and
-    /// every lane is evaluated with masks instead of a variable-length loop over the row's
-    /// chord: no scalar remainder, no per-row square root or division.
+    /// `G = exp(−½ dᵀ Σ₂D⁻¹ d)` on the block's lanes of row `dy = y − my` (pixels), exactly +0
+    /// beyond the cut-off (`dᵀ Σ₂D⁻¹ d > cut²`), outside the clipped columns and where the form
+    /// is NaN; `gdy` from [`row_gdy`]. The quadratic form is `a (dx + β dy)² + γ dy²`
+    /// (cancellation-free), and every lane is evaluated with masks instead of a variable-length
+    /// loop over the row's chord: no scalar remainder, no per-row square root or division.
     #[inline(always)]
     fn row(&self, s: &PixelSplat, dy: f32, gdy: f32) -> L {
         let d = self.dx.add(L::splat(s.beta * dy));
         // −½q directly (scaling by −½ is exact, so this is bit-identical to forming q first,
         // one multiply shorter); q ≤ cut² ⟺ −½cut² ≤ −½q.
         let nhq = self.neg_half_a.mul(d).mul_add(d, L::splat(-0.5 * gdy));
-        nhq.exp_neg()
-            .keep_le(self.neg_half_cut, nhq)
-            .mul(self.inside)
+        nhq.exp_neg().keep_le(self.neg_half_cut, nhq)
     }
 }
 
@@ -461,6 +458,9 @@ dispatched! {
             return;
         };
         let lanes = (x0 - r.0, x1 - r.0);
+        // A finite weight times G = +0 adds ±0, which leaves every sum as it is; a non-finite
+        // one needs the select so lanes outside the ellipse stay 0.
+        let finite = w.iter().all(|w| w.is_finite());
         for h in half_range(lanes.0, lanes.1) {
             let sb = SplatBlock::<L>::new(s, r.0, h, lanes, cut2);
             for y in y0..y1 {
@@ -473,8 +473,10 @@ dispatched! {
                 for (c, &w) in w.iter().enumerate() {
                     let o = c * TILE_PIXELS + p;
                     let row = block_mut(buf, o);
-                    // Select, not multiply: lanes outside the ellipse stay 0 even for w = ∞.
-                    let add = L::splat(w).mul(e).keep_nonzero(e);
+                    let mut add = L::splat(w).mul(e);
+                    if !finite {
+                        add = add.keep_nonzero(e);
+                    }
                     L::load(row).add(add).store(row);
                 }
             }
@@ -485,8 +487,8 @@ dispatched! {
 dispatched! {
     /// Backward partial sums of splat `s` over tile rect `r` into `acc`
     /// (`[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
-    /// [`project_backward`]) from the tile's upstream gradient `gt` (`[M][tile pixels]`).
-    /// `rows` is scratch (any contents on entry).
+    /// [`project_backward`]) from the tile's upstream gradient `gt` (`[M][tile pixels]`;
+    /// `finite`: every value of it is finite). `rows` is scratch (any contents on entry).
     ///
     /// Per 8-lane column block, two sweeps over the tile rows with register accumulators: the
     /// first evaluates `G` once per pixel, keeps it in `rows` and sums the moments of `w G`
@@ -498,10 +500,14 @@ dispatched! {
         r: (usize, usize, usize, usize),
         cut2: f32,
         gt: &[f32],
+        finite: bool,
         dens: &[f32],
         rows: &mut [[f32; HALF]; TILE],
         acc: &mut [f64],
     ) {
+        // With finite upstream gradients, G = +0 makes every product ±0, which leaves the sums
+        // as they are; otherwise a select keeps non-finite values outside the ellipse out.
+        let outside_zero = |v: L, e: L| if finite { v } else { v.keep_nonzero(e) };
         let m = dens.len();
         // One channel: the first sweep sums the moments of g G instead (ρ factored out and
         // applied after the reduction), whose zeroth moment is S_0 itself: no second sweep.
@@ -532,8 +538,7 @@ dispatched! {
                     }
                     u
                 };
-                // Select: a non-finite upstream gradient outside the ellipse gives 0.
-                let w = e.mul(u).keep_nonzero(e);
+                let w = outside_zero(e.mul(u), e);
                 let wy = w.mul(L::splat(dy));
                 lw = lw.add(w);
                 ly = ly.add(wy);
@@ -548,7 +553,7 @@ dispatched! {
                     for y in y0..y1 {
                         let e = L::load(&rows[y - r.2]);
                         let g = L::load(block(gt, c * TILE_PIXELS + (y - r.2) * TILE + h));
-                        sc = sc.add(e.mul(g).keep_nonzero(e));
+                        sc = sc.add(outside_zero(e.mul(g), e));
                     }
                     acc[c] += sc.sum();
                 }
@@ -794,6 +799,7 @@ fn backward(
                     gt[o..o + tw].copy_from_slice(&gview[src..src + tw]);
                 }
             }
+            let finite = gt.iter().all(|v| v.is_finite());
             let mut rows = [[0.0f32; HALF]; TILE];
             // Gather the tile's affine splats first (see the forward pass).
             let local: Vec<Option<PixelSplat>> = match &prep {
@@ -807,7 +813,7 @@ fn backward(
                 match &prep {
                     Prepared::Affine(..) => {
                         let Some(s) = &local[j] else { continue };
-                        splat_backward(s, r, cut2 as f32, &gt, dens, &mut rows, acc);
+                        splat_backward(s, r, cut2 as f32, &gt, finite, dens, &mut rows, acc);
                     }
                     Prepared::Exact(splats) => {
                         let Some((s, px)) = &splats[gi] else { continue };

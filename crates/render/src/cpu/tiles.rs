@@ -6,6 +6,28 @@
 //! `gaussian_start` / `gaussian_isects` list every Gaussian's slots in that array (the backward
 //! pass writes per-slot partial sums tile by tile, then gathers them per Gaussian).
 
+use rayon::prelude::*;
+
+/// Gaussians per binning task, at least.
+const MIN_CHUNK: usize = 4096;
+
+/// Writes Gaussian indices into distinct slots of `tile_gaussians` from several tasks.
+struct SlotWriter(*mut u32);
+
+// SAFETY: tasks write disjoint slots (see `Bins::build`) and the buffer outlives them.
+unsafe impl Send for SlotWriter {}
+unsafe impl Sync for SlotWriter {}
+
+impl SlotWriter {
+    /// # Safety
+    /// `slot` is in bounds and written by no other task.
+    #[inline(always)]
+    unsafe fn write(&self, slot: usize, g: u32) {
+        // SAFETY: the caller's contract.
+        unsafe { self.0.add(slot).write(g) }
+    }
+}
+
 /// A box of tiles, `lo` inclusive, `hi` exclusive, per axis `[x, y, z]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TileBox {
@@ -37,40 +59,87 @@ impl Bins {
         Self::build(tiles, boxes, false)
     }
 
+    /// A counting sort in two parallel passes over chunks of Gaussians (count per tile, then
+    /// write): chunk `c`'s entries of a tile follow those of chunks `< c`, so every tile lists
+    /// its Gaussians in increasing order, as one serial pass would.
     fn build(tiles: [usize; 3], boxes: &[Option<TileBox>], gaussian_side: bool) -> Self {
         let n_tiles = tiles[0] * tiles[1] * tiles[2];
-        let mut tile_count = vec![0usize; n_tiles + 1];
-        for b in boxes.iter().flatten() {
-            each_tile(tiles, b, |t| tile_count[t + 1] += 1);
-        }
+        let chunk = boxes
+            .len()
+            .div_ceil(4 * rayon::current_num_threads())
+            .max(MIN_CHUNK);
+        let chunks: Vec<&[Option<TileBox>]> = boxes.chunks(chunk).collect();
+        // Per chunk: its count in every tile, then (rewritten in place) its first slot there.
+        let mut cursors: Vec<Vec<usize>> = chunks
+            .par_iter()
+            .map(|c| {
+                let mut n = vec![0usize; n_tiles];
+                for b in c.iter().flatten() {
+                    each_tile(tiles, b, |t| n[t] += 1);
+                }
+                n
+            })
+            .collect();
+        let chunk_isects: Vec<usize> = cursors.iter().map(|n| n.iter().sum()).collect();
+        let mut tile_start = vec![0usize; n_tiles + 1];
         for t in 0..n_tiles {
-            tile_count[t + 1] += tile_count[t];
+            let mut at = tile_start[t];
+            for n in cursors.iter_mut() {
+                (n[t], at) = (at, at + n[t]);
+            }
+            tile_start[t + 1] = at;
         }
-        let total = tile_count[n_tiles];
-        let tile_start = tile_count;
-        let mut cursor = tile_start.clone();
+        let total = tile_start[n_tiles];
         let mut tile_gaussians = vec![0u32; total];
-        let (mut gaussian_start, mut gaussian_isects) = (Vec::new(), Vec::new());
+        let (mut gaussian_start, mut gaussian_isects) = if gaussian_side {
+            (vec![0usize; boxes.len() + 1], vec![0usize; total])
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        // Every chunk's slice of the Gaussian side (its Gaussians' slots are contiguous there).
+        let mut starts: Vec<&mut [usize]> = Vec::with_capacity(chunks.len());
+        let mut isects: Vec<(usize, &mut [usize])> = Vec::with_capacity(chunks.len());
         if gaussian_side {
-            gaussian_start.reserve(boxes.len() + 1);
-            gaussian_start.push(0);
-            gaussian_isects.reserve(total);
+            starts.extend(gaussian_start[1..].chunks_mut(chunk));
+            let (mut rest, mut offset) = (&mut gaussian_isects[..], 0);
+            for &n in &chunk_isects {
+                let (head, tail) = rest.split_at_mut(n);
+                isects.push((offset, head));
+                (rest, offset) = (tail, offset + n);
+            }
         }
-        for (g, b) in boxes.iter().enumerate() {
-            if let Some(b) = b {
-                each_tile(tiles, b, |t| {
-                    let slot = cursor[t];
-                    cursor[t] += 1;
-                    tile_gaussians[slot] = g as u32;
-                    if gaussian_side {
-                        gaussian_isects.push(slot);
+        let mut starts = starts.into_iter();
+        let mut isects = isects.into_iter();
+        let jobs: Vec<_> = cursors
+            .iter_mut()
+            .enumerate()
+            .map(|(c, cur)| (c, cur, starts.next(), isects.next()))
+            .collect();
+        let out = SlotWriter(tile_gaussians.as_mut_ptr());
+        jobs.into_par_iter()
+            .for_each(|(c, cur, mut start, mut isect)| {
+                let first = c * chunk;
+                let mut written = 0;
+                for (j, b) in chunks[c].iter().enumerate() {
+                    if let Some(b) = b {
+                        each_tile(tiles, b, |t| {
+                            let slot = cur[t];
+                            cur[t] += 1;
+                            // SAFETY: `slot < total`, and the cursors hand out every slot exactly
+                            // once over all chunks (disjoint ranges per (tile, chunk)), so no two
+                            // writes alias.
+                            unsafe { out.write(slot, (first + j) as u32) };
+                            if let Some((_, isect)) = isect.as_mut() {
+                                isect[written] = slot;
+                            }
+                            written += 1;
+                        });
                     }
-                });
-            }
-            if gaussian_side {
-                gaussian_start.push(gaussian_isects.len());
-            }
-        }
+                    if let (Some(start), Some((offset, _))) = (start.as_mut(), isect.as_ref()) {
+                        start[j] = offset + written;
+                    }
+                }
+            });
         Self {
             tile_start,
             tile_gaussians,
@@ -168,6 +237,61 @@ mod tests {
         assert_eq!(lists.tile_start, bins.tile_start);
         assert_eq!(lists.tile_gaussians, bins.tile_gaussians);
         assert!(lists.gaussian_start.is_empty() && lists.gaussian_isects.is_empty());
+    }
+
+    /// Many chunks: the parallel sort equals a serial counting sort (Gaussian order in every
+    /// tile, slots pointing back).
+    #[test]
+    fn parallel_binning_matches_a_serial_sort() {
+        let tiles = [5, 4, 3];
+        let k = 5 * MIN_CHUNK + 123;
+        let boxes: Vec<Option<TileBox>> = (0..k)
+            .map(|g| {
+                let h = (g as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32;
+                (!h.is_multiple_of(7)).then(|| {
+                    let lo = [h as usize % 5, (h >> 3) as usize % 4, (h >> 5) as usize % 3];
+                    TileBox {
+                        lo,
+                        hi: [
+                            (lo[0] + 1 + (h >> 7) as usize % 2).min(5),
+                            (lo[1] + 1 + (h >> 9) as usize % 3).min(4),
+                            (lo[2] + 1).min(3),
+                        ],
+                    }
+                })
+            })
+            .collect();
+        let n_tiles = 5 * 4 * 3;
+        let mut lists = vec![Vec::new(); n_tiles];
+        for (g, b) in boxes.iter().enumerate() {
+            if let Some(b) = b {
+                each_tile(tiles, b, |t| lists[t].push(g as u32));
+            }
+        }
+        let bins = Bins::new(tiles, &boxes);
+        for (t, list) in lists.iter().enumerate() {
+            assert_eq!(
+                &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]],
+                &list[..]
+            );
+        }
+        assert_eq!(bins.gaussian_start.len(), k + 1);
+        let mut seen = vec![false; bins.isects()];
+        for g in 0..k {
+            let slots = &bins.gaussian_isects[bins.gaussian_start[g]..bins.gaussian_start[g + 1]];
+            let n = boxes[g].map_or(0, |b| (0..3).map(|a| b.hi[a] - b.lo[a]).product::<usize>());
+            assert_eq!(slots.len(), n);
+            for &slot in slots {
+                assert_eq!(bins.tile_gaussians[slot] as usize, g);
+                assert!(!seen[slot]);
+                seen[slot] = true;
+            }
+        }
+        assert!(seen.iter().all(|&s| s));
+        assert_eq!(
+            Bins::tile_lists(tiles, &boxes).tile_gaussians,
+            bins.tile_gaussians
+        );
     }
 
     #[test]
