@@ -184,8 +184,20 @@ pub struct Shape3 {
     pub scale: V3,
 }
 
-/// Covariance and precision of a Gaussian, or `None` if it is degenerate.
-pub fn shape3(g: &GaussianGeom) -> Option<Shape3> {
+/// The factors of `Σ = R diag(s²) Rᵀ`, validated, without multiplying them out.
+#[derive(Clone, Copy, Debug)]
+struct Factors {
+    rot: M3,
+    unit_quat: [f64; 4],
+    quat_norm: f64,
+    scale: V3,
+    /// `s²` and `s⁻²` per axis.
+    s2: V3,
+    inv_s2: V3,
+}
+
+/// [`Factors`] of a Gaussian, or `None` if it is degenerate.
+fn factors(g: &GaussianGeom) -> Option<Factors> {
     let n2: f64 = g.quat.iter().map(|v| v * v).sum();
     let n = n2.sqrt();
     if !(n.is_finite() && n > 1e-12) {
@@ -198,13 +210,8 @@ pub fn shape3(g: &GaussianGeom) -> Option<Shape3> {
         return None;
     }
     let unit_quat = [g.quat[0] / n, g.quat[1] / n, g.quat[2] / n, g.quat[3] / n];
-    let rot = quat_to_rotation(unit_quat);
-    let s2 = [
-        g.scale[0] * g.scale[0],
-        g.scale[1] * g.scale[1],
-        g.scale[2] * g.scale[2],
-    ];
-    let inv_s2 = [1.0 / s2[0], 1.0 / s2[1], 1.0 / s2[2]];
+    let s2 = g.scale.map(|s| s * s);
+    let inv_s2 = s2.map(|v| 1.0 / v);
     if !s2
         .iter()
         .chain(inv_s2.iter())
@@ -212,14 +219,35 @@ pub fn shape3(g: &GaussianGeom) -> Option<Shape3> {
     {
         return None;
     }
-    Some(Shape3 {
-        cov: sandwich_diag(&rot, s2),
-        prec: sandwich_diag(&rot, inv_s2),
-        rot,
+    Some(Factors {
+        rot: quat_to_rotation(unit_quat),
         unit_quat,
         quat_norm: n,
         scale: g.scale,
+        s2,
+        inv_s2,
     })
+}
+
+/// Covariance and precision of a Gaussian, or `None` if it is degenerate.
+pub fn shape3(g: &GaussianGeom) -> Option<Shape3> {
+    let f = factors(g)?;
+    Some(Shape3 {
+        cov: sandwich_diag(&f.rot, f.s2),
+        prec: sandwich_diag(&f.rot, f.inv_s2),
+        rot: f.rot,
+        unit_quat: f.unit_quat,
+        quat_norm: f.quat_norm,
+        scale: f.scale,
+    })
+}
+
+/// `∂L/∂q` for the raw quaternion `q = |q| · u` given `G_R = ∂L/∂R(u)`.
+fn quat_backward(unit_quat: [f64; 4], quat_norm: f64, g_rot: &M3) -> [f64; 4] {
+    let g_unit = rotation_grad_to_quat(unit_quat, g_rot);
+    let u = unit_quat;
+    let radial = g_unit[0] * u[0] + g_unit[1] * u[1] + g_unit[2] * u[2] + g_unit[3] * u[3];
+    std::array::from_fn(|k| (g_unit[k] - u[k] * radial) / quat_norm)
 }
 
 /// Chain `∂L/∂Σ` and `∂L/∂Σ⁻¹` (world frame, symmetric) back to scale and raw quaternion.
@@ -241,13 +269,7 @@ pub fn shape3_backward(sh: &Shape3, g_cov: &M3, g_prec: &M3) -> (V3, [f64; 4]) {
             g_rot[row][i] = 2.0 * (gr_cov[row][i] * s2 + gr_prec[row][i] * inv_s2);
         }
     }
-    let g_unit = rotation_grad_to_quat(sh.unit_quat, &g_rot);
-    let u = sh.unit_quat;
-    let radial = g_unit[0] * u[0] + g_unit[1] * u[1] + g_unit[2] * u[2] + g_unit[3] * u[3];
-    let mut g_quat = [0.0; 4];
-    for k in 0..4 {
-        g_quat[k] = (g_unit[k] - u[k] * radial) / sh.quat_norm;
-    }
+    let g_quat = quat_backward(sh.unit_quat, sh.quat_norm, &g_rot);
     (g_scale, g_quat)
 }
 
@@ -354,13 +376,20 @@ pub struct Splat {
 }
 
 /// Internals of [`splat`] kept for its backward pass.
+///
+/// Nothing 3×3 is multiplied out: with `A = W R` the Gaussian's axes in the camera frame,
+/// `Σ₂D = B diag(s²) Bᵀ` with `B = J A` (2×3), and `κ = r̂ᵀ Σ_c⁻¹ r̂ = Σ_j c_j² / s_j²` with
+/// `c = Aᵀ r̂`.
 struct SplatState {
-    shape: Shape3,
+    f: Factors,
+    /// `A = W R`.
+    axes: M3,
+    /// Rows of `B = J A`.
+    b: [V3; 2],
+    /// `c = Aᵀ r̂`.
+    c: V3,
     /// Centre in camera coordinates.
     t: V3,
-    /// Camera-frame covariance and precision.
-    cov_c: M3,
-    prec_c: M3,
     /// 2×3 Jacobian of the projection at `t`.
     jac: [[f64; 3]; 2],
     r_hat: V3,
@@ -375,11 +404,9 @@ fn splat_state(
     cutoff: f64,
     near: f64,
 ) -> Option<SplatState> {
-    let shape = shape3(g)?;
-    let w = &cam.rotation;
+    let f = factors(g)?;
+    let axes = mat_mul(&cam.rotation, &f.rot);
     let t = cam.to_camera(g.mean);
-    let cov_c = congruence(w, &shape.cov);
-    let prec_c = congruence(w, &shape.prec);
     let (jac, r_hat, proj) = match cam.projection {
         Projection::Cone => {
             if t[2].partial_cmp(&near) != Some(std::cmp::Ordering::Greater) {
@@ -404,16 +431,18 @@ fn splat_state(
             [cam.fx * t[0] + cam.cx, cam.fy * t[1] + cam.cy],
         ),
     };
-    let kappa = dot(r_hat, mat_vec(&prec_c, r_hat));
+    let c = mat_t_vec(&axes, r_hat);
+    let kappa = (0..3).map(|j| c[j] * c[j] * f.inv_s2[j]).sum::<f64>();
     let mu = (2.0 * std::f64::consts::PI / kappa).sqrt();
     if !(kappa > 0.0 && mu.is_finite()) {
         return None;
     }
-    // Σ₂D = J Σ_c Jᵀ.
-    let jc = [mat_t_vec(&cov_c, jac[0]), mat_t_vec(&cov_c, jac[1])];
-    let s00 = dot(jc[0], jac[0]);
-    let s01 = dot(jc[0], jac[1]);
-    let s11 = dot(jc[1], jac[1]);
+    // Σ₂D = B diag(s²) Bᵀ, B = J A.
+    let b = [mat_t_vec(&axes, jac[0]), mat_t_vec(&axes, jac[1])];
+    let form = |p: V3, q: V3| (0..3).map(|j| p[j] * q[j] * f.s2[j]).sum::<f64>();
+    let s00 = form(b[0], b[0]);
+    let s01 = form(b[0], b[1]);
+    let s11 = form(b[1], b[1]);
     let det = s00 * s11 - s01 * s01;
     if !(det.is_finite() && det > 0.0 && s00 > 0.0 && s11 > 0.0) {
         return None;
@@ -426,10 +455,11 @@ fn splat_state(
         return None;
     }
     Some(SplatState {
-        shape,
+        f,
+        axes,
+        b,
+        c,
         t,
-        cov_c,
-        prec_c,
         jac,
         r_hat,
         kappa,
@@ -514,26 +544,28 @@ pub fn splat_backward_with(
     ];
     let g2s = 0.5 * (g2[0][1] + g2[1][0]);
     let g2 = [[g2[0][0], g2s], [g2s, g2[1][1]]];
-    // G_Σc = Jᵀ G_Σ2D J.
-    let mut g_cov_c = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in 0..3 {
-            g_cov_c[i][j] = jac[0][i] * (g2[0][0] * jac[0][j] + g2[0][1] * jac[1][j])
-                + jac[1][i] * (g2[1][0] * jac[0][j] + g2[1][1] * jac[1][j]);
-        }
-    }
-    // μ = √(2π/κ), κ = r̂ᵀ P r̂.
+    let f = &st.f;
+    let (a, b, c) = (&st.axes, &st.b, st.c);
+    // Σ₂D = B D Bᵀ (D = diag(s²)): G_B = 2 G_Σ2D B D, G_D,j = Σ_ab G_ab B_aj B_bj.
+    let g_b: [V3; 2] = std::array::from_fn(|r| {
+        std::array::from_fn(|j| 2.0 * (g2[r][0] * b[0][j] + g2[r][1] * b[1][j]) * f.s2[j])
+    });
+    // μ = √(2π/κ), κ = Σ_j c_j² s_j⁻²: G_c = 2 g_κ c s⁻², G_{s⁻²} = g_κ c², s⁻² = 1/s².
     let g_kappa = grad.mu * (-0.5 * st.splat.mu / st.kappa);
+    let g_c: V3 = std::array::from_fn(|j| 2.0 * g_kappa * c[j] * f.inv_s2[j]);
+    let g_scale: V3 = std::array::from_fn(|j| {
+        let g_s2 = g2[0][0] * b[0][j] * b[0][j]
+            + 2.0 * g2[0][1] * b[0][j] * b[1][j]
+            + g2[1][1] * b[1][j] * b[1][j]
+            - g_kappa * c[j] * c[j] * f.inv_s2[j] * f.inv_s2[j];
+        2.0 * f.scale[j] * g_s2
+    });
+    // B = J A and c = Aᵀ r̂: G_A = Jᵀ G_B + r̂ G_cᵀ; then A = W R: G_R = Wᵀ G_A.
     let r = st.r_hat;
-    let mut g_prec_c = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in 0..3 {
-            g_prec_c[i][j] = g_kappa * r[i] * r[j];
-        }
-    }
-    let g_cov = congruence_t(w, &g_cov_c);
-    let g_prec = congruence_t(w, &g_prec_c);
-    let (g_scale, g_quat) = shape3_backward(&st.shape, &g_cov, &g_prec);
+    let g_axes: M3 = std::array::from_fn(|i| {
+        std::array::from_fn(|j| jac[0][i] * g_b[0][j] + jac[1][i] * g_b[1][j] + r[i] * g_c[j])
+    });
+    let g_quat = quat_backward(f.unit_quat, f.quat_norm, &mat_mul(&transpose(w), &g_axes));
 
     // Mean: through the projected centre, J(t) and r̂(t).
     let gm = grad.mean;
@@ -544,17 +576,8 @@ pub fn splat_backward_with(
         jac[0][2] * gm[0] + jac[1][2] * gm[1],
     ];
     if cam.projection == Projection::Cone {
-        // G_J = 2 G_Σ2D J Σc (2×3).
-        let mut g_jac = [[0.0; 3]; 2];
-        for a in 0..2 {
-            let row = [
-                g2[a][0] * jac[0][0] + g2[a][1] * jac[1][0],
-                g2[a][0] * jac[0][1] + g2[a][1] * jac[1][1],
-                g2[a][0] * jac[0][2] + g2[a][1] * jac[1][2],
-            ];
-            let v = mat_t_vec(&st.cov_c, row);
-            g_jac[a] = [2.0 * v[0], 2.0 * v[1], 2.0 * v[2]];
-        }
+        // G_J = G_B Aᵀ (2×3).
+        let g_jac: [V3; 2] = [mat_vec(a, g_b[0]), mat_vec(a, g_b[1])];
         let iz = 1.0 / t[2];
         let iz2 = iz * iz;
         let (fx, fy) = (cam.fx, cam.fy);
@@ -564,13 +587,8 @@ pub fn splat_backward_with(
             + g_jac[0][2] * (2.0 * fx * t[0] * iz2 * iz)
             + g_jac[1][1] * (-fy * iz2)
             + g_jac[1][2] * (2.0 * fy * t[1] * iz2 * iz);
-        // r̂ = t/|t|: G_t += (I − r̂r̂ᵀ) G_r̂ / |t|, G_r̂ = 2 g_κ P r̂.
-        let pr = mat_vec(&st.prec_c, r);
-        let g_r = [
-            2.0 * g_kappa * pr[0],
-            2.0 * g_kappa * pr[1],
-            2.0 * g_kappa * pr[2],
-        ];
+        // r̂ = t/|t|: G_t += (I − r̂r̂ᵀ) G_r̂ / |t|, G_r̂ = A G_c.
+        let g_r = mat_vec(a, g_c);
         let len = dot(t, t).sqrt();
         let along = dot(r, g_r);
         for k in 0..3 {
