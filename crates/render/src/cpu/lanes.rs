@@ -2,12 +2,64 @@
 //! plain array ([`Portable`], any target, unfused multiply-adds).
 //!
 //! The kernels are written once, generic over [`Lanes`], and compiled for both types by the
-//! `dispatched!` macro of [`super::project`]. Explicit lanes, rather than leaving array loops to
+//! [`dispatched!`] macro. Explicit lanes, rather than leaving array loops to
 //! the auto-vectoriser, because LLVM's SLP vectoriser splits loop-carried 8-lane accumulators
 //! into 2- and 4-lane pieces (the auto-vectorised backward kernel ran in xmm registers, about
 //! 3× slower in a perf profile of one 50 000-Gaussian view).
 
 use super::{MulAdd, Separate, exp_neg_with};
+
+/// Test hook: while set, the dispatchers take the baseline path even on AVX2 CPUs (both paths
+/// give bit-identical results, so other tests running meanwhile are unaffected).
+#[cfg(test)]
+pub(crate) static FORCE_BASELINE: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
+
+/// Whether the running CPU has AVX2 and FMA (checked once; the row loops then run 8 lanes wide).
+pub(crate) fn has_avx2() -> bool {
+    #[cfg(test)]
+    if FORCE_BASELINE.load(std::sync::atomic::Ordering::Relaxed) {
+        return false;
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        *HAS.get_or_init(|| is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Generates a dispatcher `$name` over one body compiled twice: for the build's baseline target
+/// with [`Portable`] lanes (unfused multiply-adds) and with AVX2+FMA enabled and [`Avx2`] lanes
+/// (fused ones), chosen at run time by [`has_avx2`]. The variants differ in rounding only.
+/// The expansion names `Lanes`, `Portable`, `Avx2` and `has_avx2`: import them where it is used.
+macro_rules! dispatched {
+    ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
+        $(#[$doc])*
+        #[allow(clippy::too_many_arguments)]
+        fn $name($($arg: $ty),*) {
+            #[inline(always)]
+            #[allow(clippy::too_many_arguments)]
+            fn body<L: Lanes>($($arg: $ty),*) $body
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2,fma")]
+            #[allow(clippy::too_many_arguments)]
+            fn wide($($arg: $ty),*) {
+                body::<Avx2>($($arg),*)
+            }
+            #[cfg(target_arch = "x86_64")]
+            if has_avx2() {
+                // SAFETY: `has_avx2` verified that the CPU supports AVX2 and FMA.
+                return unsafe { wide($($arg),*) };
+            }
+            body::<Portable>($($arg),*)
+        }
+    };
+}
+pub(crate) use dispatched;
 
 /// Lanes per vector.
 pub(crate) const LANES: usize = 8;

@@ -19,7 +19,7 @@ use rayon::prelude::*;
 use super::GaussianSlices;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::Avx2;
-use super::lanes::{LANES, Lanes, Portable};
+use super::lanes::{LANES, Lanes, Portable, dispatched, has_avx2};
 use super::tiles::{Bins, TileBox, tile_span};
 use crate::camera::Camera;
 use crate::gaussian_math::{
@@ -392,56 +392,6 @@ const _: () = assert!(TILE == 2 * HALF);
 #[inline(always)]
 fn half_range(l0: usize, l1: usize) -> std::iter::StepBy<std::ops::Range<usize>> {
     (l0 / HALF * HALF..l1).step_by(HALF)
-}
-
-/// Test hook: while set, the dispatchers take the baseline path even on AVX2 CPUs (both paths
-/// give bit-identical results, so other tests running meanwhile are unaffected).
-#[cfg(test)]
-pub(crate) static FORCE_BASELINE: std::sync::atomic::AtomicBool =
-    std::sync::atomic::AtomicBool::new(false);
-
-/// Whether the running CPU has AVX2 and FMA (checked once; the row loops then run 8 lanes wide).
-fn has_avx2() -> bool {
-    #[cfg(test)]
-    if FORCE_BASELINE.load(std::sync::atomic::Ordering::Relaxed) {
-        return false;
-    }
-    #[cfg(target_arch = "x86_64")]
-    {
-        static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        *HAS.get_or_init(|| is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
-/// Generates a dispatcher `$name` over one body compiled twice: for the build's baseline target
-/// with [`Portable`] lanes (unfused multiply-adds) and with AVX2+FMA enabled and [`Avx2`] lanes
-/// (fused ones), chosen at run time by [`has_avx2`]. The variants differ in rounding only.
-macro_rules! dispatched {
-    ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
-        $(#[$doc])*
-        #[allow(clippy::too_many_arguments)]
-        fn $name($($arg: $ty),*) {
-            #[inline(always)]
-            #[allow(clippy::too_many_arguments)]
-            fn body<L: Lanes>($($arg: $ty),*) $body
-            #[cfg(target_arch = "x86_64")]
-            #[target_feature(enable = "avx2,fma")]
-            #[allow(clippy::too_many_arguments)]
-            fn wide($($arg: $ty),*) {
-                body::<Avx2>($($arg),*)
-            }
-            #[cfg(target_arch = "x86_64")]
-            if has_avx2() {
-                // SAFETY: `has_avx2` verified that the CPU supports AVX2 and FMA.
-                return unsafe { wide($($arg),*) };
-            }
-            body::<Portable>($($arg),*)
-        }
-    };
 }
 
 dispatched! {

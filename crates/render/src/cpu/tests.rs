@@ -255,10 +255,10 @@ fn simd_dispatch_matches_baseline() {
             .collect();
         let opts = ProjectOptions::default();
         let run = |baseline: bool| {
-            project::FORCE_BASELINE.store(baseline, std::sync::atomic::Ordering::Relaxed);
+            lanes::FORCE_BASELINE.store(baseline, std::sync::atomic::Ordering::Relaxed);
             let img = project_forward(&p.slices(), &screen, &cams, &opts);
             let grads = project_backward(&p.slices(), &screen, &cams, &opts, &grad);
-            project::FORCE_BASELINE.store(false, std::sync::atomic::Ordering::Relaxed);
+            lanes::FORCE_BASELINE.store(false, std::sync::atomic::Ordering::Relaxed);
             (img, grads)
         };
         let (img_base, g_base) = run(true);
@@ -528,59 +528,105 @@ fn voxelize_matches_direct_evaluation() {
 
 #[test]
 fn voxelize_gradients_match_central_differences() {
-    let p = Params::random(3, 2, 3.0, (1.0, 2.5), 31);
-    let k = 3;
-    let grid = VoxelGrid {
-        dims: [14, 12, 10],
-        voxel: [0.7, 0.8, 0.9],
-        offset: [0.3, -0.2, 0.1],
-    };
-    let mut rng = ChaCha8Rng::seed_from_u64(4);
-    let r: Vec<f32> = (0..2 * grid.len())
-        .map(|_| rng.random_range(-1.0..1.0))
-        .collect();
-    let opts = VoxelizeOptions { cutoff: 8.0 };
-    let grads = voxelize_backward(&p.slices(), &grid, &opts, &r);
-    let loss = |x: &[f64]| -> f64 {
-        reference_voxelize_f64(x, k, 2, &grid, 8.0)
-            .iter()
-            .zip(&r)
-            .map(|(a, b)| a * *b as f64)
-            .sum()
-    };
-    let x0 = p.flat();
-    let h = 1e-6;
-    let analytic: Vec<f32> = grads
-        .means
-        .iter()
-        .chain(&grads.scales)
-        .chain(&grads.rotations)
-        .chain(&grads.densities)
-        .copied()
-        .collect();
-    let names = [
-        ("means", 0, 3 * k),
-        ("scales", 3 * k, 6 * k),
-        ("rotations", 6 * k, 10 * k),
-        ("densities", 10 * k, 12 * k),
-    ];
-    for (name, lo, hi) in names {
-        let numeric: Vec<f64> = (lo..hi)
-            .map(|i| {
-                let (mut a, mut b) = (x0.clone(), x0.clone());
-                a[i] += h;
-                b[i] -= h;
-                (loss(&a) - loss(&b)) / (2.0 * h)
-            })
+    // Two channels exercise the channel loops, one channel its own path; the grid has partial
+    // tiles on every axis.
+    for m in [2, 1] {
+        let k = 3;
+        let p = Params::random(k, m, 3.0, (1.0, 2.5), 31);
+        let grid = VoxelGrid {
+            dims: [14, 12, 10],
+            voxel: [0.7, 0.8, 0.9],
+            offset: [0.3, -0.2, 0.1],
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let r: Vec<f32> = (0..m * grid.len())
+            .map(|_| rng.random_range(-1.0..1.0))
             .collect();
-        let scale = max_abs(&numeric);
-        for (j, n) in numeric.iter().enumerate() {
-            let a = analytic[lo + j] as f64;
-            assert!(
-                (a - n).abs() <= 2e-4 * scale,
-                "{name}[{j}]: analytic {a} vs central difference {n}"
-            );
+        let opts = VoxelizeOptions { cutoff: 8.0 };
+        let grads = voxelize_backward(&p.slices(), &grid, &opts, &r);
+        let loss = |x: &[f64]| -> f64 {
+            reference_voxelize_f64(x, k, m, &grid, 8.0)
+                .iter()
+                .zip(&r)
+                .map(|(a, b)| a * *b as f64)
+                .sum()
+        };
+        let x0 = p.flat();
+        let h = 1e-6;
+        let analytic: Vec<f32> = grads
+            .means
+            .iter()
+            .chain(&grads.scales)
+            .chain(&grads.rotations)
+            .chain(&grads.densities)
+            .copied()
+            .collect();
+        let names = [
+            ("means", 0, 3 * k),
+            ("scales", 3 * k, 6 * k),
+            ("rotations", 6 * k, 10 * k),
+            ("densities", 10 * k, (10 + m) * k),
+        ];
+        for (name, lo, hi) in names {
+            let numeric: Vec<f64> = (lo..hi)
+                .map(|i| {
+                    let (mut a, mut b) = (x0.clone(), x0.clone());
+                    a[i] += h;
+                    b[i] -= h;
+                    (loss(&a) - loss(&b)) / (2.0 * h)
+                })
+                .collect();
+            let scale = max_abs(&numeric);
+            for (j, n) in numeric.iter().enumerate() {
+                let a = analytic[lo + j] as f64;
+                assert!(
+                    (a - n).abs() <= 2e-4 * scale,
+                    "{name}[{j}] (M = {m}): analytic {a} vs central difference {n}"
+                );
+            }
         }
+    }
+}
+
+#[test]
+fn voxelize_simd_dispatch_matches_baseline() {
+    // As for the projection: the AVX2 path differs from the baseline only by FMA rounding.
+    let grid = VoxelGrid {
+        dims: [21, 18, 13],
+        voxel: [0.8, 0.9, 1.1],
+        offset: [0.5, -0.4, 0.2],
+    };
+    for m in [2, 1] {
+        let k = 60;
+        let p = Params::random(k, m, 8.0, (0.5, 3.0), 41);
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let r: Vec<f32> = (0..m * grid.len())
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let opts = VoxelizeOptions::default();
+        let run = |baseline: bool| {
+            lanes::FORCE_BASELINE.store(baseline, std::sync::atomic::Ordering::Relaxed);
+            let vol = voxelize_forward(&p.slices(), &grid, &opts);
+            let grads = voxelize_backward(&p.slices(), &grid, &opts, &r);
+            lanes::FORCE_BASELINE.store(false, std::sync::atomic::Ordering::Relaxed);
+            (vol, grads)
+        };
+        let (v0, g0) = run(true);
+        let (v1, g1) = run(false);
+        let close = |name: &str, a: &[f32], b: &[f32], tol: f64| {
+            let scale = a.iter().fold(0.0f64, |s, &v| s.max((v as f64).abs()));
+            assert!(scale > 0.0, "{name}: all zero");
+            let err = a
+                .iter()
+                .zip(b)
+                .fold(0.0f64, |e, (&x, &y)| e.max((x as f64 - y as f64).abs()));
+            assert!(err <= tol * scale, "{name} (M = {m}): {:e}", err / scale);
+        };
+        close("volume", &v0, &v1, 2e-6);
+        close("means", &g0.means, &g1.means, 2e-5);
+        close("scales", &g0.scales, &g1.scales, 2e-5);
+        close("rotations", &g0.rotations, &g1.rotations, 2e-5);
+        close("densities", &g0.densities, &g1.densities, 2e-5);
     }
 }
 

@@ -9,12 +9,19 @@
 use rayon::prelude::*;
 
 use super::GaussianSlices;
+#[cfg(target_arch = "x86_64")]
+use super::lanes::Avx2;
+use super::lanes::{LANES, Lanes, Portable, dispatched, has_avx2};
 use super::tiles::{Bins, TileBox, tile_span};
 use crate::gaussian_math::{self as gm, voxel_backward};
 use crate::options::{VoxelGrid, VoxelizeOptions};
 
-/// Voxel tile edge.
-pub const TILE: usize = 8;
+/// Voxel tile edge: one lane block per x-row.
+pub const TILE: usize = LANES;
+
+/// Elements of a tile buffer per channel: rows are stored `TILE` wide whatever the tile's width
+/// (voxels past a grid edge stay 0), so every row is one lane block.
+const TILE_VOXELS: usize = TILE * TILE * TILE;
 
 /// Gradients of a voxelization with respect to every input, row-major like the inputs.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -144,46 +151,175 @@ impl TileCentres {
     }
 }
 
-/// Visit the x-rows of `s` inside the tile: `f(local_row_start, x0, [dy, dz], e)` where `e[j]`
-/// is `G = exp(−½ dᵀ Σ⁻¹ d)` at tile-local voxel `x0 + j` (0 beyond the cut-off),
-/// `d = centre − mean`, local indices `[z][y][x]` within the tile. Rows are evaluated
-/// branch-free over the whole tile width so they vectorise.
-#[inline(always)]
-fn voxel_rows(
-    s: &VoxSplat,
-    t: &TileCentres,
-    cut2: f32,
-    mut f: impl FnMut(usize, usize, [f32; 2], &[f32]),
-) {
-    let lo = [0, 1, 2].map(|a| s.lo[a].max(t.lo[a]));
-    let hi = [0, 1, 2].map(|a| s.hi[a].min(t.hi[a]));
-    if lo[0] >= hi[0] {
-        return;
-    }
-    let (tw, th) = (t.hi[0] - t.lo[0], t.hi[1] - t.lo[1]);
-    let [d0, l01, l02, d1, l12, d2] = s.q;
-    let mut dxs = [0.0f32; TILE];
-    for (d, c) in dxs.iter_mut().zip(&t.c[0]) {
-        *d = c - s.mean[0];
-    }
-    let (x0, n) = (lo[0] - t.lo[0], hi[0] - lo[0]);
-    let mut e = [0.0f32; TILE];
-    for z in lo[2]..hi[2] {
-        let dz = t.c[2][z - t.lo[2]] - s.mean[2];
-        let qz = d2 * dz * dz;
-        for y in lo[1]..hi[1] {
-            let dy = t.c[1][y - t.lo[1]] - s.mean[1];
-            let e1 = dy + l12 * dz;
-            let qyz = d1 * e1 * e1 + qz;
-            let cx = l01 * dy + l02 * dz;
-            for (ej, dx) in e.iter_mut().zip(&dxs) {
-                let e0 = dx + cx;
-                let q = d0 * e0 * e0 + qyz;
-                let v = super::exp_neg(-0.5 * q);
-                *ej = if q <= cut2 { v } else { 0.0 };
+/// The per-(splat, tile) constants of the row kernels, and the splat clipped to the tile.
+struct VoxBlock<L> {
+    /// x offsets `centre − mean` of the tile's lanes.
+    dx: L,
+    /// `−½ d0` (the x weight of the factored precision).
+    neg_half_d0: L,
+    /// `−½ cut²` on the splat's clipped lanes and `+∞` elsewhere (one compare applies both).
+    neg_half_cut: L,
+    /// Clipped voxel box `[lo, hi)` per axis (grid indices).
+    lo: [usize; 3],
+    hi: [usize; 3],
+}
+
+impl<L: Lanes> VoxBlock<L> {
+    /// `None` if `s` misses the tile.
+    #[inline(always)]
+    fn new(s: &VoxSplat, t: &TileCentres, cut2: f32) -> Option<Self> {
+        let lo = [0, 1, 2].map(|a| s.lo[a].max(t.lo[a]));
+        let hi = [0, 1, 2].map(|a| s.hi[a].min(t.hi[a]));
+        if (0..3).any(|a| lo[a] >= hi[a]) {
+            return None;
+        }
+        let lanes = (lo[0] - t.lo[0])..(hi[0] - t.lo[0]);
+        let cut: [f32; TILE] = std::array::from_fn(|j| {
+            if lanes.contains(&j) {
+                -0.5 * cut2
+            } else {
+                f32::INFINITY
             }
-            let row = ((z - t.lo[2]) * th + (y - t.lo[1])) * tw;
-            f(row + x0, x0, [dy, dz], &e[x0..x0 + n]);
+        });
+        Some(Self {
+            dx: L::load(&t.c[0]).add(L::splat(-s.mean[0])),
+            neg_half_d0: L::splat(-0.5 * s.q[0]),
+            neg_half_cut: L::load(&cut),
+            lo,
+            hi,
+        })
+    }
+
+    /// Visit the splat's rows in the tile: `f(row offset in the tile buffer, dy, dz, G)` with
+    /// `G = exp(−½ dᵀΣ⁻¹d)` on the row's lanes (`d = centre − mean`), exactly +0 beyond the
+    /// cut-off and outside the clipped box. The form is the factored
+    /// `d0 (dx + l01 dy + l02 dz)² + d1 (dy + l12 dz)² + d2 dz²`; a row whose `y, z` part alone
+    /// exceeds the cut-off is skipped (every lane of it would be +0).
+    #[inline(always)]
+    fn rows(
+        &self,
+        s: &VoxSplat,
+        t: &TileCentres,
+        cut2: f32,
+        mut f: impl FnMut(usize, f32, f32, L),
+    ) {
+        let [_, l01, l02, d1, l12, d2] = s.q;
+        for z in self.lo[2]..self.hi[2] {
+            let dz = t.c[2][z - t.lo[2]] - s.mean[2];
+            let qz = d2 * dz * dz;
+            for y in self.lo[1]..self.hi[1] {
+                let dy = t.c[1][y - t.lo[1]] - s.mean[1];
+                let e1 = dy + l12 * dz;
+                let qyz = d1 * e1 * e1 + qz;
+                if (cut2 - qyz).partial_cmp(&0.0) == Some(std::cmp::Ordering::Less) {
+                    continue;
+                }
+                let e0 = self.dx.add(L::splat(l01 * dy + l02 * dz));
+                let nhq = self.neg_half_d0.mul(e0).mul_add(e0, L::splat(-0.5 * qyz));
+                let g = nhq.exp_neg().keep_le(self.neg_half_cut, nhq);
+                f(((z - t.lo[2]) * TILE + (y - t.lo[1])) * TILE, dy, dz, g);
+            }
+        }
+    }
+}
+
+/// The `TILE`-lane block of `v` at offset `o`.
+#[inline(always)]
+fn block(v: &[f32], o: usize) -> &[f32; TILE] {
+    v[o..o + TILE].try_into().expect("TILE-wide block")
+}
+
+dispatched! {
+    /// Forward of splat `s` into the tile buffer `buf` (`[M][TILE_VOXELS]`) with densities `w`.
+    fn voxel_forward(s: &VoxSplat, t: &TileCentres, cut2: f32, w: &[f32], buf: &mut [f32]) {
+        let Some(vb) = VoxBlock::<L>::new(s, t, cut2) else {
+            return;
+        };
+        // A finite weight times G = +0 adds ±0 (sums unchanged); a non-finite one needs the select.
+        let finite = w.iter().all(|w| w.is_finite());
+        vb.rows(s, t, cut2, |p, _, _, g| {
+            for (c, &w) in w.iter().enumerate() {
+                let o = c * TILE_VOXELS + p;
+                let mut add = L::splat(w).mul(g);
+                if !finite {
+                    add = add.keep_nonzero(g);
+                }
+                let row: &mut [f32; TILE] = (&mut buf[o..o + TILE]).try_into().expect("row");
+                L::load(row).add(add).store(row);
+            }
+        });
+    }
+}
+
+dispatched! {
+    /// Backward partial sums of splat `s` over one tile into `acc`
+    /// (`[S_0..S_{M-1}, Σ wG d (3), Σ wG d dᵀ packed xx, xy, xz, yy, yz, zz]`, `w = Σ_c ρ_c g_c`,
+    /// `S_c = Σ g_c G`) from the tile's upstream gradient `gt` (`[M][TILE_VOXELS]`; `finite`:
+    /// all of it finite).
+    ///
+    /// Lane accumulators of `wG`, `wG dy`, `wG dz`, `wG dy²`, `wG dy dz`, `wG dz²` (and `g_c G`);
+    /// a lane's `dx` is fixed, so the x moments follow at the reduction (`Σ wG dx = Σ_lanes
+    /// dx · Σ_rows wG`, and so on). With one channel the sums are of `g G` and `ρ` is applied
+    /// after the reduction (`S_0` is then the zeroth moment itself).
+    fn voxel_backward_sums(
+        s: &VoxSplat,
+        t: &TileCentres,
+        cut2: f32,
+        gt: &[f32],
+        finite: bool,
+        dens: &[f32],
+        lanes: &mut [[f32; TILE]],
+        acc: &mut [f64],
+    ) {
+        let m = dens.len();
+        let single = m == 1;
+        acc.fill(0.0);
+        let Some(vb) = VoxBlock::<L>::new(s, t, cut2) else {
+            return;
+        };
+        let outside_zero = |v: L, g: L| if finite { v } else { v.keep_nonzero(g) };
+        let z = L::zero();
+        let (mut a, mut ay, mut az, mut ayy, mut ayz, mut azz) = (z, z, z, z, z, z);
+        if !single {
+            lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
+        }
+        vb.rows(s, t, cut2, |p, dy, dz, g| {
+            let w = if single {
+                outside_zero(g.mul(L::load(block(gt, p))), g)
+            } else {
+                let mut u = L::zero();
+                for (c, &rho) in dens.iter().enumerate() {
+                    let gc = L::load(block(gt, c * TILE_VOXELS + p));
+                    let sc = outside_zero(g.mul(gc), g);
+                    L::load(&lanes[c]).add(sc).store(&mut lanes[c]);
+                    u = L::splat(rho).mul_add(gc, u);
+                }
+                outside_zero(g.mul(u), g)
+            };
+            let (vy, vz) = (L::splat(dy), L::splat(dz));
+            let wy = w.mul(vy);
+            let wz = w.mul(vz);
+            a = a.add(w);
+            ay = ay.add(wy);
+            az = az.add(wz);
+            ayy = wy.mul_add(vy, ayy);
+            ayz = wy.mul_add(vz, ayz);
+            azz = wz.mul_add(vz, azz);
+        });
+        let [sw, x, xx, y, xy, yy] = L::moments(vb.dx, a, ay, ayy);
+        let [_, _, _, zs, xz, zz] = L::moments(vb.dx, a, az, azz);
+        let yz = ayz.sum();
+        if single {
+            acc[0] = sw;
+        } else {
+            for c in 0..m {
+                acc[c] = L::load(&lanes[c]).sum();
+            }
+        }
+        let scale = if single { dens[0] as f64 } else { 1.0 };
+        let moments = [x, y, zs, xx, xy, xz, yy, yz, zz];
+        for (o, v) in acc[m..m + 9].iter_mut().zip(moments) {
+            *o = scale * v;
         }
     }
 }
@@ -204,22 +340,13 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
     let tiles: Vec<Vec<f32>> = (0..tg.n_tiles())
         .into_par_iter()
         .map(|t| {
-            let tb = tg.tile_box(t);
-            let tc = TileCentres::new(grid, tb);
-            let n: usize = (0..3).map(|a| tb.1[a] - tb.0[a]).product();
-            let mut buf = vec![0.0f32; m * n];
+            let tc = TileCentres::new(grid, tg.tile_box(t));
+            let mut buf = vec![0.0f32; m * TILE_VOXELS];
             for &gi in &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]] {
                 let gi = gi as usize;
                 let Some(s) = &splats[gi] else { continue };
                 let dens = &g.densities[m * gi..m * gi + m];
-                voxel_rows(s, &tc, cut2, |p, _, _, e| {
-                    for c in 0..m {
-                        let w = dens[c];
-                        for (b, e) in buf[c * n + p..c * n + p + e.len()].iter_mut().zip(e) {
-                            *b += w * e;
-                        }
-                    }
-                });
+                voxel_forward(s, &tc, cut2, dens, &mut buf);
             }
             buf
         })
@@ -228,14 +355,12 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
     for (t, buf) in tiles.iter().enumerate() {
         let (lo, hi) = tg.tile_box(t);
         let tw = hi[0] - lo[0];
-        let n: usize = (0..3).map(|a| hi[a] - lo[a]).product();
         for c in 0..m {
-            let mut p = c * n;
             for z in lo[2]..hi[2] {
                 for y in lo[1]..hi[1] {
+                    let src = c * TILE_VOXELS + ((z - lo[2]) * TILE + (y - lo[1])) * TILE;
                     let dst = c * vol + (z * ny + y) * nx + lo[0];
-                    out[dst..dst + tw].copy_from_slice(&buf[p..p + tw]);
-                    p += tw;
+                    out[dst..dst + tw].copy_from_slice(&buf[src..src + tw]);
                 }
             }
         }
@@ -277,70 +402,27 @@ pub fn voxelize_backward(
             let tb = tg.tile_box(t);
             let (lo, hi) = tb;
             let tw = hi[0] - lo[0];
-            let n: usize = (0..3).map(|a| hi[a] - lo[a]).product();
-            let mut gt = vec![0.0f32; m * n];
+            // The tile's upstream gradient, TILE-wide rows: [M][TILE_VOXELS].
+            let mut gt = vec![0.0f32; m * TILE_VOXELS];
             for c in 0..m {
-                let mut p = 0;
                 for z in lo[2]..hi[2] {
                     for y in lo[1]..hi[1] {
                         let src = c * vol + (z * ny + y) * nx + lo[0];
-                        gt[c * n + p..c * n + p + tw].copy_from_slice(&grad[src..src + tw]);
-                        p += tw;
+                        let dst = c * TILE_VOXELS + ((z - lo[2]) * TILE + (y - lo[1])) * TILE;
+                        gt[dst..dst + tw].copy_from_slice(&grad[src..src + tw]);
                     }
                 }
             }
+            let finite = gt.iter().all(|v| v.is_finite());
             let tc = TileCentres::new(grid, tb);
             let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
-            // Per-lane (x) partial sums, reduced once per pair: [S_0..S_{M-1}] and the moments
-            // [x, y, z, xx, xy, xz, yy, yz, zz] of w·G, w = Σ_c ρ_c g_c.
             let mut lanes = vec![[0.0f32; TILE]; m];
-            let mut mom = [[0.0f32; TILE]; 9];
             for (j, &gi) in list.iter().enumerate() {
                 let gi = gi as usize;
+                let acc = &mut out[j * stride..(j + 1) * stride];
                 let Some(s) = &splats[gi] else { continue };
                 let dens = &g.densities[m * gi..m * gi + m];
-                let dxs: [f32; TILE] = std::array::from_fn(|i| tc.c[0][i] - s.mean[0]);
-                voxel_rows(s, &tc, cut2, |p, x0, [dy, dz], e| {
-                    let k = e.len().min(TILE);
-                    let mut wge = [0.0f32; TILE];
-                    for c in 0..m {
-                        let gc = &gt[c * n + p..c * n + p + k];
-                        let rho = dens[c];
-                        let lane = &mut lanes[c];
-                        for i in 0..k {
-                            let ge = gc[i] * e[i];
-                            lane[i] += ge;
-                            wge[i] += rho * ge;
-                        }
-                    }
-                    let dx = &dxs[x0..x0 + k];
-                    let [lx, ly, lz, lxx, lxy, lxz, lyy, lyz, lzz] = &mut mom;
-                    for i in 0..k {
-                        let w = wge[i];
-                        let wx = w * dx[i];
-                        let wy = w * dy;
-                        let wz = w * dz;
-                        lx[i] += wx;
-                        ly[i] += wy;
-                        lz[i] += wz;
-                        lxx[i] += wx * dx[i];
-                        lxy[i] += wx * dy;
-                        lxz[i] += wx * dz;
-                        lyy[i] += wy * dy;
-                        lyz[i] += wy * dz;
-                        lzz[i] += wz * dz;
-                    }
-                });
-                let acc = &mut out[j * stride..(j + 1) * stride];
-                for c in 0..m {
-                    acc[c] = lanes[c].iter().map(|&v| v as f64).sum();
-                    lanes[c] = [0.0; TILE];
-                }
-                // Packed [x, y, z, xx, xy, xz, yy, yz, zz].
-                for q in 0..9 {
-                    acc[m + q] = mom[q].iter().map(|&v| v as f64).sum();
-                    mom[q] = [0.0; TILE];
-                }
+                voxel_backward_sums(s, &tc, cut2, &gt, finite, dens, &mut lanes, acc);
             }
         });
     let results: Vec<Option<([f64; 10], Vec<f64>)>> = (0..k)
