@@ -20,23 +20,6 @@ use clap::{Parser, Subcommand};
 #[global_allocator]
 static ALLOCATOR: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
 
-/// jemalloc's options for this binary: freed pages are kept for reuse instead of being purged
-/// on jemalloc's decay clock (sys time of an r2gs run on chest-40, one thread: 6.7 → 3.2 s of
-/// 26 s; peak RSS +20 %, since memory stays at its high-water mark). The environment variable
-/// `_RJEM_MALLOC_CONF` still overrides it.
-#[cfg(not(target_env = "msvc"))]
-#[unsafe(export_name = "_rjem_malloc_conf")]
-#[used]
-static JEMALLOC_CONF: ConfString = ConfString(c"dirty_decay_ms:-1,muzzy_decay_ms:-1".as_ptr());
-
-/// A C `const char *` (jemalloc reads `malloc_conf` as one).
-#[cfg(not(target_env = "msvc"))]
-#[repr(transparent)]
-struct ConfString(*const std::ffi::c_char);
-
-// SAFETY: it points at an immutable `'static` string.
-#[cfg(not(target_env = "msvc"))]
-unsafe impl Sync for ConfString {}
 use std::process::ExitCode;
 
 #[derive(Parser)]

@@ -56,14 +56,15 @@ impl Study {
 
     /// The variants of this study around `base` (its other settings kept).
     ///
-    /// Freeze: the paper's default FFFL (geometry fixed, density learnable), all learnable,
+    /// Freeze: the paper's FFFL (geometry fixed, density learnable), all learnable (our default),
     /// all frozen (only the network learns), each geometric group alone learnable, and the
     /// geometry learnable with the density frozen.
     pub fn variants(self, base: &GaussianConfig) -> Vec<Variant> {
         match self {
             Study::Freeze => {
+                let p = Freeze::PAPER;
                 let strategies = [
-                    (true, true, true, false),
+                    (p.position, p.rotation, p.scale, p.density),
                     (false, false, false, false),
                     (true, true, true, true),
                     (false, true, true, false),
