@@ -160,6 +160,18 @@ fn reference_project(
     out
 }
 
+/// `max |a − b| ≤ tol · max |a|` (and `a` not all zero).
+fn assert_close_to_scale(what: &str, a: &[f32], b: &[f32], tol: f64) {
+    assert_eq!(a.len(), b.len(), "{what}");
+    let scale = a.iter().fold(0.0f64, |m, &v| m.max((v as f64).abs()));
+    assert!(scale > 0.0, "{what}: all zero");
+    let err = a
+        .iter()
+        .zip(b)
+        .fold(0.0f64, |m, (&x, &y)| m.max((x as f64 - y as f64).abs()));
+    assert!(err <= tol * scale, "{what}: {:e}", err / scale);
+}
+
 fn max_abs(v: &[f64]) -> f64 {
     v.iter().fold(0.0f64, |a, b| a.max(b.abs()))
 }
@@ -264,18 +276,7 @@ fn simd_dispatch_matches_baseline() {
         let (img_base, g_base) = run(true);
         let (img, g) = run(false);
         let close = |name: &str, a: &[f32], b: &[f32], tol: f64| {
-            assert_eq!(a.len(), b.len(), "{name}");
-            let scale = a.iter().fold(0.0f64, |m, &v| m.max((v as f64).abs()));
-            assert!(scale > 0.0, "{name}: all zero");
-            let err = a
-                .iter()
-                .zip(b)
-                .fold(0.0f64, |m, (&x, &y)| m.max((x as f64 - y as f64).abs()));
-            assert!(
-                err <= tol * scale,
-                "{name} (M = {channels}): {:e}",
-                err / scale
-            );
+            assert_close_to_scale(&format!("{name} (M = {channels})"), a, b, tol)
         };
         close("image", &img_base, &img, 2e-6);
         close("means", &g_base.means, &g.means, 2e-5);
@@ -614,13 +615,7 @@ fn voxelize_simd_dispatch_matches_baseline() {
         let (v0, g0) = run(true);
         let (v1, g1) = run(false);
         let close = |name: &str, a: &[f32], b: &[f32], tol: f64| {
-            let scale = a.iter().fold(0.0f64, |s, &v| s.max((v as f64).abs()));
-            assert!(scale > 0.0, "{name}: all zero");
-            let err = a
-                .iter()
-                .zip(b)
-                .fold(0.0f64, |e, (&x, &y)| e.max((x as f64 - y as f64).abs()));
-            assert!(err <= tol * scale, "{name} (M = {m}): {:e}", err / scale);
+            assert_close_to_scale(&format!("{name} (M = {m})"), a, b, tol)
         };
         close("volume", &v0, &v1, 2e-6);
         close("means", &g0.means, &g1.means, 2e-5);
