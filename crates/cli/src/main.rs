@@ -15,11 +15,11 @@ use clap::{Parser, Subcommand};
 
 /// jemalloc instead of the system allocator: training allocates and frees tensors of tens of MB
 /// every iteration, which glibc returns to the OS each time (its mmap threshold), so every step
-/// paid page faults (10–30 % of a GSC-Net step measured with `perf`).
+/// paid page faults (10–30 % of a GSC-Net step measured with `perf`); jemalloc keeps freed pages
+/// for reuse (decay of seconds).
 #[cfg(not(target_env = "msvc"))]
 #[global_allocator]
 static ALLOCATOR: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
-
 use std::process::ExitCode;
 
 #[derive(Parser)]
