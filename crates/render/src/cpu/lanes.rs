@@ -78,6 +78,13 @@ pub(crate) trait Lanes: Copy {
     fn keep_le(self, a: Self, b: Self) -> Self;
     /// `self` where `e ≠ 0`, else `+0` (a select, so a non-finite `self` there gives 0).
     fn keep_nonzero(self, e: Self) -> Self;
+    /// `self · e` where `e ≠ 0`, else `+0`, for a product whose other factor (`self / e`) is
+    /// `finite` everywhere when the flag says so: a finite value times `e = +0` is ±0, which
+    /// leaves any sum it enters unchanged, so the select is only paid for non-finite factors.
+    #[inline(always)]
+    fn zero_outside(self, e: Self, finite: bool) -> Self {
+        if finite { self } else { self.keep_nonzero(e) }
+    }
     /// [`super::exp_neg`] of every lane (same polynomial, this type's `mul_add`).
     fn exp_neg(self) -> Self;
 

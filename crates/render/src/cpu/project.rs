@@ -408,8 +408,6 @@ dispatched! {
             return;
         };
         let lanes = (x0 - r.0, x1 - r.0);
-        // A finite weight times G = +0 adds ±0, which leaves every sum as it is; a non-finite
-        // one needs the select so lanes outside the ellipse stay 0.
         let finite = w.iter().all(|w| w.is_finite());
         for h in half_range(lanes.0, lanes.1) {
             let sb = SplatBlock::<L>::new(s, r.0, h, lanes, cut2);
@@ -423,10 +421,7 @@ dispatched! {
                 for (c, &w) in w.iter().enumerate() {
                     let o = c * TILE_PIXELS + p;
                     let row = block_mut(buf, o);
-                    let mut add = L::splat(w).mul(e);
-                    if !finite {
-                        add = add.keep_nonzero(e);
-                    }
+                    let add = L::splat(w).mul(e).zero_outside(e, finite);
                     L::load(row).add(add).store(row);
                 }
             }
@@ -455,9 +450,6 @@ dispatched! {
         rows: &mut [[f32; HALF]; TILE],
         acc: &mut [f64],
     ) {
-        // With finite upstream gradients, G = +0 makes every product ±0, which leaves the sums
-        // as they are; otherwise a select keeps non-finite values outside the ellipse out.
-        let outside_zero = |v: L, e: L| if finite { v } else { v.keep_nonzero(e) };
         let m = dens.len();
         // One channel: the first sweep sums the moments of g G instead (ρ factored out and
         // applied after the reduction), whose zeroth moment is S_0 itself: no second sweep.
@@ -488,7 +480,7 @@ dispatched! {
                     }
                     u
                 };
-                let w = outside_zero(e.mul(u), e);
+                let w = e.mul(u).zero_outside(e, finite);
                 let wy = w.mul(L::splat(dy));
                 lw = lw.add(w);
                 ly = ly.add(wy);
@@ -503,7 +495,7 @@ dispatched! {
                     for y in y0..y1 {
                         let e = L::load(&rows[y - r.2]);
                         let g = L::load(block(gt, c * TILE_PIXELS + (y - r.2) * TILE + h));
-                        sc = sc.add(outside_zero(e.mul(g), e));
+                        sc = sc.add(e.mul(g).zero_outside(e, finite));
                     }
                     acc[c] += sc.sum();
                 }

@@ -235,15 +235,11 @@ dispatched! {
         let Some(vb) = VoxBlock::<L>::new(s, t, cut2) else {
             return;
         };
-        // A finite weight times G = +0 adds ±0 (sums unchanged); a non-finite one needs the select.
         let finite = w.iter().all(|w| w.is_finite());
         vb.rows(s, t, cut2, |p, _, _, g| {
             for (c, &w) in w.iter().enumerate() {
                 let o = c * TILE_VOXELS + p;
-                let mut add = L::splat(w).mul(g);
-                if !finite {
-                    add = add.keep_nonzero(g);
-                }
+                let add = L::splat(w).mul(g).zero_outside(g, finite);
                 let row: &mut [f32; TILE] = (&mut buf[o..o + TILE]).try_into().expect("row");
                 L::load(row).add(add).store(row);
             }
@@ -277,7 +273,6 @@ dispatched! {
         let Some(vb) = VoxBlock::<L>::new(s, t, cut2) else {
             return;
         };
-        let outside_zero = |v: L, g: L| if finite { v } else { v.keep_nonzero(g) };
         let z = L::zero();
         let (mut a, mut ay, mut az, mut ayy, mut ayz, mut azz) = (z, z, z, z, z, z);
         if !single {
@@ -285,16 +280,16 @@ dispatched! {
         }
         vb.rows(s, t, cut2, |p, dy, dz, g| {
             let w = if single {
-                outside_zero(g.mul(L::load(block(gt, p))), g)
+                g.mul(L::load(block(gt, p))).zero_outside(g, finite)
             } else {
                 let mut u = L::zero();
                 for (c, &rho) in dens.iter().enumerate() {
                     let gc = L::load(block(gt, c * TILE_VOXELS + p));
-                    let sc = outside_zero(g.mul(gc), g);
+                    let sc = g.mul(gc).zero_outside(g, finite);
                     L::load(&lanes[c]).add(sc).store(&mut lanes[c]);
                     u = L::splat(rho).mul_add(gc, u);
                 }
-                outside_zero(g.mul(u), g)
+                g.mul(u).zero_outside(g, finite)
             };
             let (vy, vz) = (L::splat(dy), L::splat(dz));
             let wy = w.mul(vy);
