@@ -3,7 +3,7 @@
 //! one (`r2gs | 4dsg-stage1`, see `prism_core::gaussian::run`).
 
 use prism_core::classic::recon::METRICS_FILE;
-use prism_core::gaussian::cpu_device;
+use prism_core::gaussian::DeviceChoice;
 use prism_core::method::MethodConfig;
 use prism_core::scene::Scene;
 use std::path::PathBuf;
@@ -20,12 +20,32 @@ pub struct ReconArgs {
     /// (Gaussian methods add `log.jsonl`, `train.json` and the trained Gaussians).
     #[arg(short = 'o', long = "out")]
     out: PathBuf,
+    /// Compute device of a Gaussian method (overrides the config's `device`): `cpu`, or `wgpu`
+    /// in a prism built with `--features wgpu` (a GPU, or Mesa's lavapipe without one).
+    #[arg(long = "device")]
+    device: Option<DeviceArg>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum DeviceArg {
+    Cpu,
+    Wgpu,
 }
 
 pub fn run(args: ReconArgs) -> anyhow::Result<()> {
-    let config = MethodConfig::load(&args.config)?;
+    let mut config = MethodConfig::load(&args.config)?;
+    if let (MethodConfig::Gaussian(c), Some(d)) = (&mut config, args.device) {
+        c.device = match d {
+            DeviceArg::Cpu => DeviceChoice::Cpu,
+            DeviceArg::Wgpu => DeviceChoice::Wgpu,
+        };
+    }
+    let device = match &config {
+        MethodConfig::Gaussian(c) => c.device.device()?,
+        MethodConfig::Classic(_) => DeviceChoice::Cpu.device()?,
+    };
     let scene = Scene::load(&args.scene)?;
-    match config.run(&scene, &args.out, &cpu_device())? {
+    match config.run(&scene, &args.out, &device)? {
         Some(report) => {
             for c in &report.channels {
                 eprintln!(

@@ -21,6 +21,7 @@
 mod autodiff;
 mod backend;
 pub mod block;
+pub mod composed;
 pub mod config;
 pub mod conv;
 pub mod cpu;

@@ -73,6 +73,9 @@ pub(crate) fn fused_selective_scan(
     d: Tensor<1>,
     softplus: bool,
 ) -> Tensor<3> {
+    if !crate::composed::has_fused_kernels(&x.device()) {
+        return crate::composed::selective_scan(x, delta, a_log, b, c, d, softplus);
+    }
     Tensor::from_dispatch(Dispatch::selective_scan(
         x.into_dispatch(),
         delta.into_dispatch(),
@@ -87,6 +90,9 @@ pub(crate) fn fused_selective_scan(
 /// The fused depthwise convolution + SiLU (shapes checked by the caller,
 /// [`crate::conv::spectral_conv_silu`]).
 pub(crate) fn fused_conv_silu(u: Tensor<3>, w: Tensor<2>, bias: Tensor<1>) -> Tensor<3> {
+    if !crate::composed::has_fused_kernels(&u.device()) {
+        return crate::composed::conv_silu(u, w, bias);
+    }
     Tensor::from_dispatch(Dispatch::spectral_conv_silu(
         u.into_dispatch(),
         w.into_dispatch(),

@@ -9,7 +9,8 @@
 //!   channels per call; [`screen_probe`] / [`screen_grad_norm`] give the densification statistic.
 //! * [`voxelize`]: Gaussians → `[M, nz, ny, nx]` density on any [`VoxelGrid`].
 //! * [`gaussian_math`]: the per-Gaussian and per-ray math shared by forward and backward;
-//!   [`cpu`]: the rayon tile kernels used by the NdArray and Flex backends.
+//!   [`cpu`]: the rayon tile kernels used by the NdArray and Flex backends; `cube` (feature
+//!   `wgpu`): the CubeCL kernels of the wgpu backend.
 
 // Index loops mirror the matrix math (and the CubeCL kernels that will port it).
 #![allow(clippy::needless_range_loop)]
@@ -18,6 +19,8 @@ mod autodiff;
 mod backend;
 pub mod camera;
 pub mod cpu;
+#[cfg(feature = "wgpu")]
+pub mod cube;
 pub mod error;
 pub mod gaussian_math;
 pub mod ops;
@@ -26,6 +29,7 @@ pub mod options;
 pub use camera::{Camera, Projection, Ray};
 pub use error::{RenderError, Result};
 pub use ops::{
-    GaussianOps, Gaussians, project, screen_grad_norm, screen_probe, validate_cameras, voxelize,
+    GaussianOps, Gaussians, is_gpu, project, screen_grad_norm, screen_probe, validate_cameras,
+    voxelize,
 };
 pub use options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions};

@@ -15,17 +15,22 @@ use burn::tensor::{DType, Tensor};
 
 use crate::camera::Camera;
 use crate::error::{RenderError, Result};
-use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
+use crate::options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions};
 
 /// Differentiable Gaussian projection and voxelization. Backward kernels are ops of their own so
-/// every backend (and later the CubeCL port) provides them next to the forward.
+/// every backend (CPU: [`crate::cpu`]; wgpu: `crate::cube`) provides them next to the forward.
 ///
 /// Projection runs in two stages: [`GaussianOps::gaussian_project_prepare`] computes the
 /// per-view, per-Gaussian screen-space state once (an opaque, non-differentiable f32 tensor in
 /// a layout the backend chooses), and the forward and backward ops read it, so a forward and its
 /// backward prepare every Gaussian once (the autodiff layer keeps the tensor for the backward).
 /// The prepared tensor must come from the same inputs, cameras and options.
-#[backend_extension(NdArray: cfg(feature = "ndarray"), Flex: cfg(feature = "flex"), Autodiff)]
+#[backend_extension(
+    NdArray: cfg(feature = "ndarray"),
+    Flex: cfg(feature = "flex"),
+    Cube: cfg(feature = "wgpu"),
+    Autodiff
+)]
 pub trait GaussianOps: Backend {
     /// The prepared state of every view and Gaussian for [`GaussianOps::gaussian_project`] and
     /// [`GaussianOps::gaussian_project_backward`] (CPU backends: `[V, K, cpu::PREPARED_WIDTH]`,
@@ -242,6 +247,12 @@ pub fn project(
     let (k, _) = gaussians.validate()?;
     validate_cameras(cameras)?;
     options.validate()?;
+    if options.mode == ProjectionMode::Exact && is_gpu(&gaussians.means.device()) {
+        return Err(RenderError::invalid(
+            "mode",
+            "exact-mode projection runs on the CPU backends only; use affine on wgpu",
+        ));
+    }
     let v = cameras.len();
     let screen = match screen {
         Some(s) => {
@@ -278,6 +289,22 @@ pub fn project(
         cameras.to_vec(),
         *options,
     )))
+}
+
+/// Whether tensors on `device` run on the CubeCL (wgpu) backend rather than a CPU one.
+pub fn is_gpu(device: &burn::tensor::Device) -> bool {
+    #[cfg(feature = "wgpu")]
+    {
+        matches!(
+            device.clone().inner().as_dispatch(),
+            burn::backend::DispatchDevice::Cube(_)
+        )
+    }
+    #[cfg(not(feature = "wgpu"))]
+    {
+        let _ = device;
+        false
+    }
 }
 
 /// Evaluate the Gaussians' density at the voxel centres of `grid`: `[M, nz, ny, nx]`.

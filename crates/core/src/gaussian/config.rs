@@ -91,6 +91,39 @@ pub struct GaussianConfig {
     /// curve of the observed channels and score the prediction (`holdout.json`).
     #[serde(default)]
     pub holdout_channels: Vec<String>,
+    /// Where training runs: `cpu` (Flex) or `wgpu` (the GPU, or lavapipe without one; needs a
+    /// `prism` built with `--features wgpu`). `prism recon --device` overrides it.
+    #[serde(default)]
+    pub device: DeviceChoice,
+}
+
+/// The compute device of a Gaussian run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DeviceChoice {
+    /// Burn's Flex backend with Prism's rayon kernels.
+    #[default]
+    Cpu,
+    /// Burn's wgpu backend with Prism's CubeCL kernels.
+    Wgpu,
+}
+
+impl DeviceChoice {
+    /// The Burn device, or an error if this build lacks the backend.
+    pub fn device(self) -> Result<burn::tensor::Device> {
+        match self {
+            DeviceChoice::Cpu => Ok(super::cpu_device()),
+            #[cfg(feature = "wgpu")]
+            DeviceChoice::Wgpu => Ok(burn::tensor::Device::wgpu(
+                burn::tensor::DeviceKind::DefaultDevice,
+            )),
+            #[cfg(not(feature = "wgpu"))]
+            DeviceChoice::Wgpu => Err(Error::Invalid {
+                field: "device".into(),
+                message: "wgpu needs a prism built with `--features wgpu`".into(),
+            }),
+        }
+    }
 }
 
 /// Which parameter groups stay fixed in stage 2 (the paper's freezing strategies).
@@ -220,6 +253,7 @@ impl GaussianConfig {
             structural: StructuralSource::Auto,
             stage2: Stage2Config::default(),
             holdout_channels: Vec::new(),
+            device: DeviceChoice::default(),
         }
     }
 

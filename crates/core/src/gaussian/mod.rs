@@ -25,7 +25,7 @@ pub mod run;
 pub mod trainer;
 pub mod world;
 
-pub use config::{GaussianConfig, GaussianMethod};
+pub use config::{DeviceChoice, GaussianConfig, GaussianMethod};
 pub use host::{HostGaussians, ScaleBounds};
 pub use model::{GaussianModel, Learnable};
 pub use world::World;

@@ -53,7 +53,7 @@ impl Params {
     }
 
     /// All parameters as one f64 vector (means, scales, rotations, densities).
-    fn flat(&self) -> Vec<f64> {
+    pub(crate) fn flat(&self) -> Vec<f64> {
         self.means
             .iter()
             .chain(&self.scales)
@@ -626,7 +626,7 @@ fn voxelize_simd_dispatch_matches_baseline() {
 }
 
 /// Untiled f64 voxelizer: every Gaussian at every voxel centre, parameters as in `Params::flat`.
-fn reference_voxelize_f64(
+pub(crate) fn reference_voxelize_f64(
     x: &[f64],
     k: usize,
     m: usize,

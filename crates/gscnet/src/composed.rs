@@ -1,0 +1,199 @@
+//! The fused spectral kernels composed from Burn tensor ops: the path for backends without a
+//! fused kernel (wgpu), differentiated by Burn's autodiff. Same maths as [`crate::cpu::scan`]
+//! and [`crate::cpu::conv`]; the tests below check the two paths agree on the CPU.
+
+use burn::tensor::{Tensor, activation};
+
+/// Whether `device` has the fused CPU kernels (Flex, NdArray, with or without autodiff).
+pub fn has_fused_kernels(device: &burn::tensor::Device) -> bool {
+    #[cfg(feature = "wgpu")]
+    {
+        !matches!(
+            device.clone().inner().as_dispatch(),
+            burn::backend::DispatchDevice::Cube(_)
+        )
+    }
+    #[cfg(not(feature = "wgpu"))]
+    {
+        let _ = device;
+        true
+    }
+}
+
+/// The selective scan of [`crate::ssm`] as a loop over the M spectral steps: the states
+/// `h_m = exp(Δ_m A) ⊙ h_{m−1} + (Δ_m x_m) B_m` are `[K, E, N]` tensors.
+pub fn selective_scan(
+    x: Tensor<3>,
+    delta: Tensor<3>,
+    a_log: Tensor<2>,
+    b: Tensor<3>,
+    c: Tensor<3>,
+    d: Tensor<1>,
+    softplus: bool,
+) -> Tensor<3> {
+    let [k, m, e] = x.dims();
+    let [_, n] = a_log.dims();
+    let delta = if softplus {
+        activation::softplus(delta, 1.0)
+    } else {
+        delta
+    };
+    let a = a_log.exp().neg().reshape([1, e, n]);
+    let d = d.reshape([1, e]);
+    let mut h = Tensor::<3>::zeros([k, e, n], &x.device());
+    let mut ys = Vec::with_capacity(m);
+    for step in 0..m {
+        let xm = x.clone().narrow(1, step, 1).reshape([k, e]);
+        let dm = delta.clone().narrow(1, step, 1).reshape([k, e]);
+        let bm = b.clone().narrow(1, step, 1).reshape([k, 1, n]);
+        let cm = c.clone().narrow(1, step, 1).reshape([k, 1, n]);
+        let decay = (dm.clone().reshape([k, e, 1]) * a.clone()).exp();
+        h = decay * h + (dm * xm.clone()).reshape([k, e, 1]) * bm;
+        let y = (h.clone() * cm).sum_dim(2).reshape([k, e]) + d.clone() * xm;
+        ys.push(y.reshape([k, 1, e]));
+    }
+    Tensor::cat(ys, 1)
+}
+
+/// SiLU of the centred depthwise convolution over M of [`crate::conv`]:
+/// `p_{k,m,e} = bias_e + Σ_j w_{e,j} u_{k, m+j−r, e}` with zero padding.
+pub fn conv_silu(u: Tensor<3>, w: Tensor<2>, bias: Tensor<1>) -> Tensor<3> {
+    let [k, m, e] = u.dims();
+    let [_, taps] = w.dims();
+    let r = taps / 2;
+    let device = u.device();
+    let padded = if r > 0 {
+        let pad = Tensor::<3>::zeros([k, r, e], &device);
+        Tensor::cat(vec![pad.clone(), u, pad], 1)
+    } else {
+        u
+    };
+    let mut p = bias.reshape([1, 1, e]).expand([k, m, e]);
+    for j in 0..taps {
+        let tap = w.clone().narrow(1, j, 1).reshape([1, 1, e]);
+        p = p + padded.clone().narrow(1, j, m) * tap;
+    }
+    activation::silu(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::{Device, TensorData};
+
+    fn device() -> Device {
+        crate::test_util::cpu().autodiff()
+    }
+
+    fn tensor<const D: usize>(dims: [usize; D], seed: u32, lo: f32, hi: f32) -> Tensor<D> {
+        let n: usize = dims.iter().product();
+        let v: Vec<f32> = (0..n)
+            .map(|i| {
+                let h = (i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8;
+                lo + (hi - lo) * (h as f32 / 16777216.0)
+            })
+            .collect();
+        Tensor::from_data(TensorData::new(v, dims), &device()).require_grad()
+    }
+
+    fn vec_of<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.into_data()
+            .convert::<f32>()
+            .try_into_vec::<f32>()
+            .unwrap()
+    }
+
+    fn close(what: &str, a: Vec<f32>, b: Vec<f32>) {
+        let scale = b.iter().fold(0.0f32, |s, v| s.max(v.abs())).max(1e-20);
+        let err = a
+            .iter()
+            .zip(&b)
+            .fold(0.0f32, |s, (x, y)| s.max((x - y).abs()));
+        assert!(err <= 2e-5 * scale, "{what}: {:e}", err / scale);
+    }
+
+    #[test]
+    fn composed_scan_matches_the_fused_kernel_and_its_gradients() {
+        let (k, m, e, n) = (5, 4, 3, 2);
+        for softplus in [false, true] {
+            let x = tensor([k, m, e], 1, -1.0, 1.0);
+            let dt = tensor([k, m, e], 2, 0.05, 0.8);
+            let a_log = tensor([e, n], 3, -1.0, 1.0);
+            let b = tensor([k, m, n], 4, -1.0, 1.0);
+            let c = tensor([k, m, n], 5, -1.0, 1.0);
+            let d = tensor([e], 6, -1.0, 1.0);
+            let w = tensor([k, m, e], 7, -1.0, 1.0);
+            let args = (
+                x.clone(),
+                dt.clone(),
+                a_log.clone(),
+                b.clone(),
+                c.clone(),
+                d.clone(),
+            );
+            let fused = crate::ops::fused_selective_scan(
+                args.0, args.1, args.2, args.3, args.4, args.5, softplus,
+            );
+            let composed = selective_scan(
+                x.clone(),
+                dt.clone(),
+                a_log.clone(),
+                b.clone(),
+                c.clone(),
+                d.clone(),
+                softplus,
+            );
+            close("scan", vec_of(composed.clone()), vec_of(fused.clone()));
+            let gf = (fused * w.clone()).sum().backward();
+            let gc = (composed * w).sum().backward();
+            for (name, t) in [("x", &x), ("dt", &dt), ("b", &b), ("c", &c)] {
+                close(
+                    name,
+                    vec_of(t.grad(&gc).unwrap()),
+                    vec_of(t.grad(&gf).unwrap()),
+                );
+            }
+            close(
+                "a_log",
+                vec_of(a_log.grad(&gc).unwrap()),
+                vec_of(a_log.grad(&gf).unwrap()),
+            );
+            close(
+                "d",
+                vec_of(d.grad(&gc).unwrap()),
+                vec_of(d.grad(&gf).unwrap()),
+            );
+        }
+    }
+
+    #[test]
+    fn composed_conv_matches_the_fused_kernel_and_its_gradients() {
+        let (k, m, e) = (4, 5, 3);
+        for taps in [1, 3, 5] {
+            let u = tensor([k, m, e], 11, -1.0, 1.0);
+            let w = tensor([e, taps], 12, -1.0, 1.0);
+            let bias = tensor([e], 13, -0.5, 0.5);
+            let g = tensor([k, m, e], 14, -1.0, 1.0);
+            let fused = crate::ops::fused_conv_silu(u.clone(), w.clone(), bias.clone());
+            let composed = conv_silu(u.clone(), w.clone(), bias.clone());
+            close("conv", vec_of(composed.clone()), vec_of(fused.clone()));
+            let gf = (fused * g.clone()).sum().backward();
+            let gc = (composed * g).sum().backward();
+            close(
+                "u",
+                vec_of(u.grad(&gc).unwrap()),
+                vec_of(u.grad(&gf).unwrap()),
+            );
+            close(
+                "w",
+                vec_of(w.grad(&gc).unwrap()),
+                vec_of(w.grad(&gf).unwrap()),
+            );
+            close(
+                "bias",
+                vec_of(bias.grad(&gc).unwrap()),
+                vec_of(bias.grad(&gf).unwrap()),
+            );
+        }
+    }
+}

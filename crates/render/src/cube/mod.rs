@@ -1,0 +1,403 @@
+//! CubeCL kernels of the render ops for Burn's `CubeBackend` (wgpu: Vulkan, Metal, DX12, and
+//! Mesa's lavapipe without a GPU).
+//!
+//! Same contract as the CPU kernels ([`crate::cpu`]): the prepared projection state is the same
+//! `[V, K, PREPARED_WIDTH]` record layout, culling and cut-off rules are the same, and every
+//! formula is the f32 port of [`crate::gaussian_math`] ([`math`]). Forward passes own one
+//! output tile per cube and compact the tile's Gaussians in index order ([`compact`]); backward
+//! passes own one Gaussian per unit and gather its footprint. Neither needs atomics, so the
+//! kernels run unchanged on devices without f32 atomic add and give run-to-run identical
+//! results. Nothing is read back to the host: every buffer size follows from the shapes.
+//!
+//! Exact-mode projection has no GPU kernel yet: [`crate::project`] rejects it on this backend.
+
+// Kernels reject NaN through negated comparisons (`!(x > 0)` is true for NaN); CubeCL has no
+// `partial_cmp`.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod math;
+pub mod project;
+pub mod voxelize;
+
+#[cfg(test)]
+mod tests;
+
+use burn::backend::ops::FloatTensorOps;
+use burn::backend::tensor::FloatTensor;
+use burn::tensor::{DType, Shape, TensorData};
+use burn_cubecl::cubecl;
+use burn_cubecl::{
+    CubeBackend, kernel::into_contiguous, ops::numeric::zeros_client, tensor::CubeTensor,
+};
+use cubecl::prelude::*;
+
+use crate::camera::{Camera, Projection};
+use crate::cpu::PREPARED_WIDTH;
+use crate::options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions};
+use math::CAM_WIDTH;
+use project::{CHUNK, TILE};
+
+/// Block-wide stream compaction step: every unit of the cube passes its `hit` flag; afterwards
+/// `scan[t]` holds the inclusive prefix count (so a hit's slot is `scan[t] − 1`, in unit order)
+/// and the return value is the number of hits. Contains barriers: call it uniformly.
+#[cube]
+pub fn compact(hit: bool, t: usize, scan: &mut Shared<[u32]>) -> u32 {
+    scan[t] = u32::cast_from(hit);
+    sync_cube();
+    // Hillis–Steele inclusive scan over CHUNK entries.
+    let mut off = 1usize;
+    while off < CHUNK {
+        let mut val = scan[t];
+        if t >= off {
+            val += scan[t - off];
+        }
+        sync_cube();
+        scan[t] = val;
+        sync_cube();
+        off *= 2;
+    }
+    scan[CHUNK - 1]
+}
+
+/// Cameras as `[V · CAM_WIDTH]` f32: rotation (row-major), translation, fx, fy, cx, cy, sdd,
+/// cone flag, rows, cols.
+pub fn pack_cameras(cams: &[Camera]) -> Vec<f32> {
+    let mut out = Vec::with_capacity(cams.len() * CAM_WIDTH);
+    for c in cams {
+        out.extend(c.rotation.iter().flatten().map(|&v| v as f32));
+        out.extend(c.translation.iter().map(|&v| v as f32));
+        out.extend([c.fx, c.fy, c.cx, c.cy, c.sdd].map(|v| v as f32));
+        out.push(if c.projection == Projection::Cone {
+            1.0
+        } else {
+            0.0
+        });
+        out.extend([c.rows as f32, c.cols as f32]);
+    }
+    out
+}
+
+fn upload(like: &CubeTensor, values: Vec<f32>) -> CubeTensor {
+    let n = values.len();
+    CubeBackend::float_from_data(TensorData::new(values, [n]), &like.device)
+}
+
+fn zeros(like: &CubeTensor, shape: Vec<usize>) -> CubeTensor {
+    zeros_client(
+        like.client.clone(),
+        like.device.clone(),
+        Shape::from(shape),
+        DType::F32,
+    )
+}
+
+fn dims(t: &CubeTensor) -> Vec<usize> {
+    t.meta.shape().to_vec()
+}
+
+/// One unit per item, 256-unit cubes.
+fn linear(n: usize) -> (CubeCount, CubeDim) {
+    let n = u32::try_from(n).expect("kernel item count fits in u32");
+    (
+        CubeCount::Static(n.div_ceil(CHUNK as u32).max(1), 1, 1),
+        CubeDim::new_1d(CHUNK as u32),
+    )
+}
+
+fn exact_unsupported(options: &ProjectOptions) {
+    assert!(
+        options.mode == ProjectionMode::Affine,
+        "exact-mode projection has no wgpu kernel (prism_render::project rejects it first)"
+    );
+}
+
+/// The four Gaussian parameter tensors made contiguous.
+struct Params {
+    means: CubeTensor,
+    scales: CubeTensor,
+    rotations: CubeTensor,
+    densities: CubeTensor,
+    k: usize,
+    m: usize,
+}
+
+impl Params {
+    fn new(
+        means: CubeTensor,
+        scales: CubeTensor,
+        rotations: CubeTensor,
+        densities: CubeTensor,
+    ) -> Self {
+        let k = dims(&means)[0];
+        let m = dims(&densities)[1];
+        Self {
+            means: into_contiguous(means),
+            scales: into_contiguous(scales),
+            rotations: into_contiguous(rotations),
+            densities: into_contiguous(densities),
+            k,
+            m,
+        }
+    }
+}
+
+fn grid_record(grid: &VoxelGrid) -> Vec<f32> {
+    let mut v: Vec<f32> = grid.dims.iter().map(|&n| n as f32).collect();
+    v.extend(grid.voxel.iter().map(|&x| x as f32));
+    v.extend(grid.offset.iter().map(|&x| x as f32));
+    v
+}
+
+fn voxel_prepare(p: &Params, grid: &CubeTensor, options: &VoxelizeOptions) -> CubeTensor {
+    let out = zeros(&p.means, vec![p.k, voxelize::VOX_WIDTH]);
+    let (count, dim) = linear(p.k);
+    voxelize::prepare_kernel::launch(
+        &p.means.client,
+        count,
+        dim,
+        p.means.clone().into_tensor_arg(),
+        p.scales.clone().into_tensor_arg(),
+        p.rotations.clone().into_tensor_arg(),
+        p.densities.clone().into_tensor_arg(),
+        grid.clone().into_tensor_arg(),
+        out.clone().into_tensor_arg(),
+        p.k as u32,
+        options.cutoff as f32,
+        p.m,
+    );
+    out
+}
+
+impl crate::ops::GaussianOps for CubeBackend {
+    fn gaussian_project_prepare(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        screen: FloatTensor<Self>,
+        cameras: Vec<Camera>,
+        options: ProjectOptions,
+    ) -> FloatTensor<Self> {
+        exact_unsupported(&options);
+        let p = Params::new(means, scales, rotations, densities);
+        let out = zeros(&p.means, vec![cameras.len(), p.k, PREPARED_WIDTH]);
+        let Some(first) = cameras.first() else {
+            return out;
+        };
+        if p.k == 0 {
+            return out;
+        }
+        let cams = upload(&p.means, pack_cameras(&cameras));
+        let (count, dim) = linear(p.k * cameras.len());
+        project::prepare_kernel::launch(
+            &p.means.client,
+            count,
+            dim,
+            p.means.clone().into_tensor_arg(),
+            p.scales.into_tensor_arg(),
+            p.rotations.into_tensor_arg(),
+            p.densities.into_tensor_arg(),
+            into_contiguous(screen).into_tensor_arg(),
+            cams.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            p.k as u32,
+            cameras.len() as u32,
+            first.rows as u32,
+            first.cols as u32,
+            options.cutoff as f32,
+            options.near_fraction as f32,
+            p.m,
+        );
+        out
+    }
+
+    fn gaussian_project(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        screen: FloatTensor<Self>,
+        prepared: FloatTensor<Self>,
+        cameras: Vec<Camera>,
+        options: ProjectOptions,
+    ) -> FloatTensor<Self> {
+        exact_unsupported(&options);
+        let _ = (scales, rotations, screen);
+        let k = dims(&means)[0];
+        let m = dims(&densities)[1];
+        let (rows, cols) = cameras.first().map_or((0, 0), |c| (c.rows, c.cols));
+        let out = zeros(&means, vec![cameras.len(), m, rows, cols]);
+        if k == 0 || m == 0 || rows == 0 || cols == 0 {
+            return out;
+        }
+        let count = CubeCount::Static(
+            (cols as u32).div_ceil(TILE),
+            (rows as u32).div_ceil(TILE),
+            cameras.len() as u32,
+        );
+        project::forward_kernel::launch(
+            &means.client,
+            count,
+            CubeDim::new_2d(TILE, TILE),
+            into_contiguous(prepared).into_tensor_arg(),
+            into_contiguous(densities).into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            k as u32,
+            rows as u32,
+            cols as u32,
+            (options.cutoff * options.cutoff) as f32,
+            m,
+        );
+        out
+    }
+
+    fn gaussian_project_backward(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        screen: FloatTensor<Self>,
+        prepared: FloatTensor<Self>,
+        cameras: Vec<Camera>,
+        options: ProjectOptions,
+        grad: FloatTensor<Self>,
+    ) -> (
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+    ) {
+        exact_unsupported(&options);
+        let p = Params::new(means, scales, rotations, densities);
+        let (k, m) = (p.k, p.m);
+        let v = cameras.len();
+        let g = (
+            zeros(&p.means, vec![k, 3]),
+            zeros(&p.means, vec![k, 3]),
+            zeros(&p.means, vec![k, 4]),
+            zeros(&p.means, vec![k, m]),
+            zeros(&p.means, vec![v, k, 2]),
+        );
+        let Some(first) = cameras.first() else {
+            return g;
+        };
+        if k == 0 || m == 0 || first.rows == 0 || first.cols == 0 {
+            return g;
+        }
+        let cams = upload(&p.means, pack_cameras(&cameras));
+        let (count, dim) = linear(k);
+        project::backward_kernel::launch(
+            &p.means.client,
+            count,
+            dim,
+            p.means.clone().into_tensor_arg(),
+            p.scales.into_tensor_arg(),
+            p.rotations.into_tensor_arg(),
+            p.densities.into_tensor_arg(),
+            into_contiguous(screen).into_tensor_arg(),
+            cams.into_tensor_arg(),
+            into_contiguous(prepared).into_tensor_arg(),
+            into_contiguous(grad).into_tensor_arg(),
+            g.0.clone().into_tensor_arg(),
+            g.1.clone().into_tensor_arg(),
+            g.2.clone().into_tensor_arg(),
+            g.3.clone().into_tensor_arg(),
+            g.4.clone().into_tensor_arg(),
+            k as u32,
+            v as u32,
+            first.rows as u32,
+            first.cols as u32,
+            options.cutoff as f32,
+            options.near_fraction as f32,
+            m,
+        );
+        g
+    }
+
+    fn gaussian_voxelize(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        grid: VoxelGrid,
+        options: VoxelizeOptions,
+    ) -> FloatTensor<Self> {
+        let p = Params::new(means, scales, rotations, densities);
+        let [nx, ny, nz] = grid.dims;
+        let out = zeros(&p.means, vec![p.m, nz, ny, nx]);
+        if p.k == 0 || p.m == 0 || grid.is_empty() {
+            return out;
+        }
+        let grid_t = upload(&p.means, grid_record(&grid));
+        let prepared = voxel_prepare(&p, &grid_t, &options);
+        let count = CubeCount::Static(
+            (nx as u32).div_ceil(voxelize::BX),
+            (ny as u32).div_ceil(voxelize::BY),
+            (nz as u32).div_ceil(voxelize::BZ),
+        );
+        voxelize::forward_kernel::launch(
+            &p.means.client,
+            count,
+            CubeDim::new_3d(voxelize::BX, voxelize::BY, voxelize::BZ),
+            prepared.into_tensor_arg(),
+            p.densities.into_tensor_arg(),
+            grid_t.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            p.k as u32,
+            (options.cutoff * options.cutoff) as f32,
+            p.m,
+        );
+        out
+    }
+
+    fn gaussian_voxelize_backward(
+        means: FloatTensor<Self>,
+        scales: FloatTensor<Self>,
+        rotations: FloatTensor<Self>,
+        densities: FloatTensor<Self>,
+        grid: VoxelGrid,
+        options: VoxelizeOptions,
+        grad: FloatTensor<Self>,
+    ) -> (
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+        FloatTensor<Self>,
+    ) {
+        let p = Params::new(means, scales, rotations, densities);
+        let (k, m) = (p.k, p.m);
+        let g = (
+            zeros(&p.means, vec![k, 3]),
+            zeros(&p.means, vec![k, 3]),
+            zeros(&p.means, vec![k, 4]),
+            zeros(&p.means, vec![k, m]),
+        );
+        if k == 0 || m == 0 || grid.is_empty() {
+            return g;
+        }
+        let grid_t = upload(&p.means, grid_record(&grid));
+        let prepared = voxel_prepare(&p, &grid_t, &options);
+        let (count, dim) = linear(k);
+        voxelize::backward_kernel::launch(
+            &p.means.client,
+            count,
+            dim,
+            p.means.clone().into_tensor_arg(),
+            p.scales.into_tensor_arg(),
+            p.rotations.into_tensor_arg(),
+            p.densities.into_tensor_arg(),
+            grid_t.into_tensor_arg(),
+            prepared.into_tensor_arg(),
+            into_contiguous(grad).into_tensor_arg(),
+            g.0.clone().into_tensor_arg(),
+            g.1.clone().into_tensor_arg(),
+            g.2.clone().into_tensor_arg(),
+            g.3.clone().into_tensor_arg(),
+            k as u32,
+            (options.cutoff * options.cutoff) as f32,
+            m,
+        );
+        g
+    }
+}
