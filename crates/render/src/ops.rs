@@ -346,4 +346,4 @@ pub fn screen_grad_norm(grad: &Tensor<3>) -> Tensor<1> {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

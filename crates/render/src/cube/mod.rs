@@ -59,6 +59,34 @@ pub fn compact(hit: bool, t: usize, scan: &mut Shared<[u32]>) -> u32 {
     scan[CHUNK - 1]
 }
 
+/// One culling chunk of a forward kernel: compacts the units' hits (unit `t` tests record `j` at
+/// `prepared[base + j · width..]`) into `recs` (the records) and `ids` (their indices) in unit
+/// order and returns their number. Contains barriers: call it uniformly.
+#[cube]
+#[allow(clippy::too_many_arguments)]
+pub fn stage_chunk(
+    prepared: &Tensor<f32>,
+    base: usize,
+    j: usize,
+    hit: bool,
+    t: usize,
+    scan: &mut Shared<[u32]>,
+    recs: &mut Shared<[f32]>,
+    ids: &mut Shared<[u32]>,
+    #[comptime] width: usize,
+) -> u32 {
+    let n = compact(hit, t, scan);
+    if hit {
+        let slot = scan[t] as usize - 1;
+        for f in 0..width {
+            recs[slot * width + f] = prepared[base + j * width + f];
+        }
+        ids[slot] = j as u32;
+    }
+    sync_cube();
+    n
+}
+
 /// Cameras as `[V · CAM_WIDTH]` f32: rotation (row-major), translation, fx, fy, cx, cy, sdd,
 /// cone flag, rows, cols.
 pub fn pack_cameras(cams: &[Camera]) -> Vec<f32> {

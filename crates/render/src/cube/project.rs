@@ -14,7 +14,7 @@
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::compact;
+use super::stage_chunk;
 use crate::cpu::PREPARED_WIDTH as PW;
 use crate::cube::math::{ST_CONIC, ST_LEN, ST_MU, finite, splat_backward, splat_state};
 
@@ -168,16 +168,17 @@ pub fn forward_kernel(
             let y1 = f32::min(prepared[o + 9], rows_f);
             hit = x0 < x1 && y0 < y1 && x0 < tx1f && x1 > tx0f && y0 < ty1f && y1 > ty0f;
         }
-        let n = compact(hit, t, &mut scan);
-        if hit {
-            let slot = scan[t] as usize - 1;
-            let o = (v * kk + j) * PW;
-            for f in 0..PW {
-                recs[slot * PW + f] = prepared[o + f];
-            }
-            ids[slot] = j as u32;
-        }
-        sync_cube();
+        let n = stage_chunk(
+            prepared,
+            v * kk * PW,
+            j,
+            hit,
+            t,
+            &mut scan,
+            &mut recs,
+            &mut ids,
+            PW,
+        );
         for e in 0..n as usize {
             let r = e * PW;
             let inside =

@@ -13,41 +13,17 @@ use burn::tensor::{Device, DeviceKind, Tensor, TensorData};
 use crate::camera::Camera;
 use crate::cpu::tests::{Params, cone, parallel};
 use crate::cpu::{project_backward, project_forward, voxelize_backward, voxelize_forward};
+use crate::ops::tests::{tensors as tracked, to_vec, weights};
 use crate::ops::{Gaussians, project, screen_probe, voxelize};
+
+/// Gaussians on `device` that require grad.
+fn tensors(p: &Params, device: &Device) -> Gaussians {
+    tracked(p, device, true)
+}
 use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
 
 fn gpu() -> Device {
     Device::wgpu(DeviceKind::DefaultDevice)
-}
-
-fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data()
-        .convert::<f32>()
-        .try_into_vec::<f32>()
-        .expect("f32 data")
-}
-
-fn tensors(p: &Params, device: &Device) -> Gaussians {
-    let k = p.means.len() / 3;
-    let mk = |v: &Vec<f32>, c: usize| {
-        Tensor::<2>::from_data(TensorData::new(v.clone(), [k, c]), device).require_grad()
-    };
-    Gaussians {
-        means: mk(&p.means, 3),
-        scales: mk(&p.scales, 3),
-        rotations: mk(&p.rotations, 4),
-        densities: mk(&p.densities, p.channels),
-    }
-}
-
-/// Deterministic, sign-changing upstream gradient.
-fn weights(n: usize, seed: u32) -> Vec<f32> {
-    (0..n)
-        .map(|i| {
-            (((i as u32).wrapping_mul(2654435761).wrapping_add(seed) >> 8) as f32 / 16777216.0)
-                - 0.5
-        })
-        .collect()
 }
 
 /// `max |gpu − cpu| / max(max |cpu|, floor)` (0 when both are all zero), asserted `≤ tol`.

@@ -9,8 +9,8 @@
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::compact;
 use super::math::{ST_LEN, ST_ROT, ST_SCALE, covariances, factors, finite, precision_backward};
+use super::stage_chunk;
 
 /// Width of one Gaussian's voxel record: `[mean (3), scaled axes w_j = r_j / s_j (3 × 3),
 /// lo (3), hi (3), 0, 0]` (zeros if culled).
@@ -174,15 +174,9 @@ pub fn forward_kernel(
                 }
             }
         }
-        let n = compact(hit, t, &mut scan);
-        if hit {
-            let slot = scan[t] as usize - 1;
-            for f in 0..VOX_WIDTH {
-                recs[slot * VOX_WIDTH + f] = prepared[j * VOX_WIDTH + f];
-            }
-            ids[slot] = j as u32;
-        }
-        sync_cube();
+        let n = stage_chunk(
+            prepared, 0, j, hit, t, &mut scan, &mut recs, &mut ids, VOX_WIDTH,
+        );
         for e in 0..n as usize {
             let r = e * VOX_WIDTH;
             let inside = fx >= recs[r + 12]

@@ -18,14 +18,14 @@ fn devices() -> Vec<Device> {
     .collect()
 }
 
-fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+pub(crate) fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data()
         .convert::<f32>()
         .into_vec::<f32>()
         .expect("f32 data")
 }
 
-fn tensors(p: &Params, device: &Device, track: bool) -> Gaussians {
+pub(crate) fn tensors(p: &Params, device: &Device, track: bool) -> Gaussians {
     let k = p.means.len() / 3;
     let mk = |v: &Vec<f32>, c: usize| {
         let t = Tensor::<2>::from_data(TensorData::new(v.clone(), [k, c]), device);
@@ -39,7 +39,7 @@ fn tensors(p: &Params, device: &Device, track: bool) -> Gaussians {
     }
 }
 
-fn weights(n: usize, seed: u32) -> Vec<f32> {
+pub(crate) fn weights(n: usize, seed: u32) -> Vec<f32> {
     // Deterministic, sign-changing upstream gradient.
     (0..n)
         .map(|i| {
