@@ -1,4 +1,6 @@
-//! Benchmark of the render ops on the CPU (Flex backend, rayon).
+//! Benchmark of the render ops on the CPU (Flex backend, rayon), or with `BENCH_DEVICE=wgpu` (and
+//! `--features wgpu`) on the wgpu backend's CubeCL kernels (the exact mode and the Burn-primitive
+//! reference are then skipped).
 //!
 //! Scene: 50 000 Gaussians from an FDK-like initialisation of a 128³ (1 mm voxels) phantom —
 //! centres sampled from the phantom's voxels with jitter, isotropic scales from the mean distance
@@ -12,7 +14,7 @@
 //!   custom op on a small case, as a time ratio.
 //!
 //! Run: `cargo bench -p prism-render --bench render` (env `ITERS` sets the iteration count,
-//! `BENCH_ONLY=affine,exact,voxelize,reference` a subset).
+//! `BENCH_ONLY=affine,exact,voxelize,reference` a subset, `BENCH_DEVICE=flex|wgpu` the device).
 
 use std::time::Instant;
 
@@ -297,13 +299,28 @@ fn enabled(section: &str) -> bool {
     std::env::var("BENCH_ONLY").map_or(true, |v| v.split(',').any(|s| s.trim() == section))
 }
 
+/// The autodiff device named by `BENCH_DEVICE` (default Flex).
+fn bench_device() -> Device {
+    match std::env::var("BENCH_DEVICE").as_deref() {
+        Err(_) | Ok("flex") => Device::flex().autodiff(),
+        #[cfg(feature = "wgpu")]
+        Ok("wgpu") => Device::wgpu(burn::tensor::DeviceKind::DefaultDevice).autodiff(),
+        Ok(other) => panic!("BENCH_DEVICE={other}: expected flex, or wgpu with --features wgpu"),
+    }
+}
+
 fn main() {
     let iters: usize = std::env::var("ITERS")
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(10);
-    let ad = Device::flex().autodiff();
-    println!("threads: {}", rayon::current_num_threads());
+    let ad = bench_device();
+    let gpu = prism_render::is_gpu(&ad);
+    println!(
+        "device: {}; threads: {}",
+        if gpu { "wgpu" } else { "flex" },
+        rayon::current_num_threads()
+    );
 
     let t0 = Instant::now();
     let host = fdk_like_init(50_000, 42);
@@ -326,7 +343,7 @@ fn main() {
         ("affine", ProjectOptions::default()),
         ("exact", ProjectOptions::exact()),
     ] {
-        if !enabled(name) {
+        if !enabled(name) || (gpu && opts.mode == prism_render::ProjectionMode::Exact) {
             continue;
         }
         let cams = [view(0.4, Projection::Cone, 256, 1.0)];
@@ -355,7 +372,7 @@ fn main() {
     if enabled("voxelize") {
         bench_voxelize(&g, iters);
     }
-    if enabled("reference") {
+    if enabled("reference") && !gpu {
         bench_reference(&host, &ad, iters);
     }
 }

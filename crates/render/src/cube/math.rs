@@ -403,39 +403,6 @@ pub fn covariances(st: &Array<f32>, cov: &mut Array<f32>, prec: &mut Array<f32>)
     }
 }
 
-/// Chain `∂L/∂Σ⁻¹` (`g_prec`, symmetric, row-major) to scale and raw quaternion, as
-/// [`crate::gaussian_math::shape3_backward`] with `∂L/∂Σ = 0`: `out[3..6]` scale,
-/// `out[6..10]` quaternion.
-#[cube]
-pub fn precision_backward(st: &Array<f32>, g_prec: &Array<f32>, out: &mut Array<f32>) {
-    // G R (row-major 3×3).
-    let mut gr = Array::<f32>::new(9usize);
-    for r in 0..3usize {
-        for c in 0..3usize {
-            gr[3 * r + c] = g_prec[3 * r] * st[ST_ROT + c]
-                + g_prec[3 * r + 1] * st[ST_ROT + 3 + c]
-                + g_prec[3 * r + 2] * st[ST_ROT + 6 + c];
-        }
-    }
-    let mut g_rot = Array::<f32>::new(9usize);
-    for i in 0..3usize {
-        let s = st[ST_SCALE + i];
-        let inv = st[ST_INV_S2 + i];
-        let d = st[ST_ROT + i] * gr[i]
-            + st[ST_ROT + 3 + i] * gr[3 + i]
-            + st[ST_ROT + 6 + i] * gr[6 + i];
-        out[3 + i] = -2.0f32 * inv / s * d;
-        for r in 0..3usize {
-            g_rot[3 * r + i] = 2.0f32 * gr[3 * r + i] * inv;
-        }
-    }
-    let mut g_quat = Array::<f32>::new(4usize);
-    quat_backward(st, &g_rot, &mut g_quat);
-    for e in 0..4usize {
-        out[6 + e] = g_quat[e];
-    }
-}
-
 /// Cell range `[lo, hi)` of the inclusive index interval `[first, last]` on a grid of `n` cells,
 /// as [`crate::cpu::tiles::tile_span`], written to `out[o]`, `out[o + 1]` (as f32, exact below
 /// 2²⁴); `[0, 0)` if it misses the grid or is NaN.

@@ -232,14 +232,26 @@ fn voxel_parity(name: &str, p: &Params, grid: &VoxelGrid, thin: bool) {
     if thin {
         // A needle or sheet thinner than 1/400 of a voxel: f32 evaluation of any form is off
         // the f64 truth by about ε·|d|/s_min·max(e·G) ≈ 6e-8 · 55 / 0.01 · 0.61 = 2e-4 of the
-        // peak (the CPU kernel too, see the printout); its gradients are not compared (open:
-        // accumulate the backward moments in the Gaussian's frame).
+        // peak, the CPU kernel too (see the printout), so the GPU is held to the truth.
         check(
             &format!("{name} voxelize vs f64 truth"),
             &got,
             &truth,
             THIN_VOXEL_TOL,
         );
+        let floor = rotation_floor(p, &truth_grads[1]);
+        for (i, what) in ["means", "scales", "rotations", "densities"]
+            .iter()
+            .enumerate()
+        {
+            check_with_floor(
+                &format!("{name} voxelize ∂{what} vs f64 truth"),
+                &gpu_grads[i],
+                &truth_grads[i],
+                THIN_VOXEL_TOL,
+                if i == 2 { floor } else { 0.0 },
+            );
+        }
         return;
     }
     check(&format!("{name} voxelize"), &got, &want, FORWARD_TOL);

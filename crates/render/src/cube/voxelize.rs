@@ -9,7 +9,7 @@
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::math::{ST_LEN, ST_ROT, ST_SCALE, covariances, factors, finite, precision_backward};
+use super::math::{ST_LEN, ST_ROT, ST_SCALE, covariances, factors, finite, quat_backward};
 use super::stage_chunk;
 
 /// Width of one Gaussian's voxel record: `[mean (3), scaled axes w_j = r_j / s_j (3 × 3),
@@ -240,9 +240,11 @@ pub fn backward_kernel(
     for c in 0..m {
         sums[c] = 0.0f32;
     }
-    // Σ w G d (3) and Σ w G d dᵀ (xx, xy, xz, yy, yz, zz).
-    let mut mom = Array::<f32>::new(9usize);
-    for e in 0..9usize {
+    // Moments in the Gaussian's frame, e_j = w_j · d (w = uG, u = Σ_c ρ_c ∂L/∂value_c):
+    // [Σ w e_j (3), Σ w e_j² (3), Σ w e_j d (3 × 3, row j)]. Sums of e_j² keep the thin axis of a
+    // needle or sheet accurate, where world moments d dᵀ contracted with Σ⁻¹ cancel in f32.
+    let mut mom = Array::<f32>::new(15usize);
+    for e in 0..15usize {
         mom[e] = 0.0f32;
     }
     let mut q = Array::<f32>::new(9usize);
@@ -256,6 +258,7 @@ pub fn backward_kernel(
     let y1 = u32::min(u32::cast_from(prepared[o + 16]), ny);
     let z1 = u32::min(u32::cast_from(prepared[o + 17]), nz);
     let (mx, my, mz) = (prepared[o], prepared[o + 1], prepared[o + 2]);
+    let mut e = Array::<f32>::new(3usize);
     let mut z = z0;
     while z < z1 {
         let dz = centre(grid, 2, z) - mz;
@@ -265,9 +268,13 @@ pub fn backward_kernel(
             let mut x = x0;
             while x < x1 {
                 let dx = centre(grid, 0, x) - mx;
-                let nhq = neg_half_q3(&q, dx, dy, dz, cut2);
-                if nhq <= 0.0f32 {
-                    let g = f32::exp(nhq);
+                let mut qq = 0.0f32;
+                for j in 0..3usize {
+                    e[j] = q[3 * j] * dx + q[3 * j + 1] * dy + q[3 * j + 2] * dz;
+                    qq += e[j] * e[j];
+                }
+                if qq <= cut2 {
+                    let g = f32::exp(-0.5f32 * qq);
                     let p = ((z * ny + y) * nx + x) as usize;
                     let mut u = 0.0f32;
                     for c in 0..m {
@@ -276,15 +283,14 @@ pub fn backward_kernel(
                         u += densities[i * m + c] * gc;
                     }
                     let w = u * g;
-                    mom[0] += w * dx;
-                    mom[1] += w * dy;
-                    mom[2] += w * dz;
-                    mom[3] += w * dx * dx;
-                    mom[4] += w * dx * dy;
-                    mom[5] += w * dx * dz;
-                    mom[6] += w * dy * dy;
-                    mom[7] += w * dy * dz;
-                    mom[8] += w * dz * dz;
+                    for j in 0..3usize {
+                        let we = w * e[j];
+                        mom[j] += we;
+                        mom[3 + j] += we * e[j];
+                        mom[6 + 3 * j] += we * dx;
+                        mom[6 + 3 * j + 1] += we * dy;
+                        mom[6 + 3 * j + 2] += we * dz;
+                    }
                 }
                 x += 1;
             }
@@ -293,8 +299,8 @@ pub fn backward_kernel(
         z += 1;
     }
     let mut out = Array::<f32>::new(10usize);
-    for e in 0..10usize {
-        out[e] = 0.0f32;
+    for f in 0..10usize {
+        out[f] = 0.0f32;
     }
     let mut good = x0 < x1 && y0 < y1 && z0 < z1;
     let mut st = Array::<f32>::new(ST_LEN);
@@ -302,29 +308,24 @@ pub fn backward_kernel(
         good = factors(means, scales, rotations, i, &mut st);
     }
     if good {
-        // ∂G/∂mean = G · P d with P = Σ_j w_j w_jᵀ; ∂G/∂P = −½ G d dᵀ.
-        for a in 0..3usize {
-            out[a] = 0.0f32;
-        }
+        // G = exp(−½ Σ_j e_j²), e_j = r_jᵀd / s_j:
+        // ∂G/∂mean = G Σ_j e_j w_j, ∂G/∂s_j = G e_j² / s_j, ∂G/∂r_j = −G e_j d / s_j.
+        let mut g_rot = Array::<f32>::new(9usize);
         for j in 0..3usize {
-            let wd = q[3 * j] * mom[0] + q[3 * j + 1] * mom[1] + q[3 * j + 2] * mom[2];
+            let s = st[ST_SCALE + j];
             for a in 0..3usize {
-                out[a] += q[3 * j + a] * wd;
+                out[a] += q[3 * j + a] * mom[j];
+                g_rot[3 * a + j] = -mom[6 + 3 * j + a] / s;
             }
+            out[3 + j] = mom[3 + j] / s;
         }
-        let mut g_prec = Array::<f32>::new(9usize);
-        g_prec[0] = -0.5f32 * mom[3];
-        g_prec[1] = -0.5f32 * mom[4];
-        g_prec[2] = -0.5f32 * mom[5];
-        g_prec[3] = -0.5f32 * mom[4];
-        g_prec[4] = -0.5f32 * mom[6];
-        g_prec[5] = -0.5f32 * mom[7];
-        g_prec[6] = -0.5f32 * mom[5];
-        g_prec[7] = -0.5f32 * mom[7];
-        g_prec[8] = -0.5f32 * mom[8];
-        precision_backward(&st, &g_prec, &mut out);
-        for e in 0..10usize {
-            if !finite(out[e]) {
+        let mut g_quat = Array::<f32>::new(4usize);
+        quat_backward(&st, &g_rot, &mut g_quat);
+        for f in 0..4usize {
+            out[6 + f] = g_quat[f];
+        }
+        for f in 0..10usize {
+            if !finite(out[f]) {
                 good = false;
             }
         }
