@@ -4,7 +4,7 @@
 //! Same contract as the CPU kernels ([`crate::cpu`]): the prepared projection state is the same
 //! `[V, K, PREPARED_WIDTH]` record layout, culling and cut-off rules are the same, and every
 //! formula is the f32 port of [`crate::gaussian_math`] ([`math`]). Forward passes own one
-//! output tile per cube and compact the tile's Gaussians in index order ([`compact`]); backward
+//! output tile per cube and compact the tile's Gaussians in index order ([`stage_chunk`]); backward
 //! passes own one Gaussian per unit and gather its footprint. Neither needs atomics, so the
 //! kernels run unchanged on devices without f32 atomic add and give run-to-run identical
 //! results. Nothing is read back to the host: every buffer size follows from the shapes.
@@ -37,54 +37,52 @@ use crate::options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions}
 use math::CAM_WIDTH;
 use project::{CHUNK, TILE};
 
-/// Block-wide stream compaction step: every unit of the cube passes its `hit` flag; afterwards
-/// `scan[t]` holds the inclusive prefix count (so a hit's slot is `scan[t] − 1`, in unit order)
-/// and the return value is the number of hits. Contains barriers: call it uniformly.
+/// Gaussians each unit tests per culling step of a forward kernel.
+pub const PER_UNIT: usize = 4;
+/// Gaussians per culling step of a cube: [`CHUNK`] units × [`PER_UNIT`].
+pub const STEP: usize = CHUNK * PER_UNIT;
+
+/// One culling step of a forward kernel: unit `t` tested Gaussians `first..first + PER_UNIT`
+/// and set bit `i` of `hits` for each one that touches the cube's tile or brick. Their indices
+/// are compacted into `ids` in index order (an exclusive prefix sum of the units' hit counts,
+/// ping-pong Hillis–Steele over `scan` of `2 · CHUNK` entries: one barrier per step, one scan
+/// per `STEP` Gaussians); returns the number of hits. Contains barriers: call it uniformly.
 #[cube]
-pub fn compact(hit: bool, t: usize, scan: &mut Shared<[u32]>) -> u32 {
-    scan[t] = u32::cast_from(hit);
+pub fn stage_chunk(
+    hits: u32,
+    first: usize,
+    t: usize,
+    scan: &mut Shared<[u32]>,
+    ids: &mut Shared<[u32]>,
+) -> u32 {
+    let mut count = 0u32;
+    for i in 0..PER_UNIT {
+        count += (hits >> i as u32) & 1u32;
+    }
+    scan[t] = count;
     sync_cube();
-    // Hillis–Steele inclusive scan over CHUNK entries.
+    let mut src = 0usize;
     let mut off = 1usize;
     while off < CHUNK {
-        let mut val = scan[t];
+        let mut val = scan[src * CHUNK + t];
         if t >= off {
-            val += scan[t - off];
+            val += scan[src * CHUNK + t - off];
         }
-        sync_cube();
-        scan[t] = val;
+        src = 1 - src;
+        scan[src * CHUNK + t] = val;
         sync_cube();
         off *= 2;
     }
-    scan[CHUNK - 1]
-}
-
-/// One culling chunk of a forward kernel: compacts the units' hits (unit `t` tests record `j` at
-/// `prepared[base + j · width..]`) into `recs` (the records) and `ids` (their indices) in unit
-/// order and returns their number. Contains barriers: call it uniformly.
-#[cube]
-#[allow(clippy::too_many_arguments)]
-pub fn stage_chunk(
-    prepared: &Tensor<f32>,
-    base: usize,
-    j: usize,
-    hit: bool,
-    t: usize,
-    scan: &mut Shared<[u32]>,
-    recs: &mut Shared<[f32]>,
-    ids: &mut Shared<[u32]>,
-    #[comptime] width: usize,
-) -> u32 {
-    let n = compact(hit, t, scan);
-    if hit {
-        let slot = scan[t] as usize - 1;
-        for f in 0..width {
-            recs[slot * width + f] = prepared[base + j * width + f];
+    let total = scan[src * CHUNK + CHUNK - 1];
+    let mut slot = (scan[src * CHUNK + t] - count) as usize;
+    for i in 0..PER_UNIT {
+        if (hits >> i as u32) & 1u32 == 1u32 {
+            ids[slot] = (first + i) as u32;
+            slot += 1;
         }
-        ids[slot] = j as u32;
     }
     sync_cube();
-    n
+    total
 }
 
 /// Cameras as `[V · CAM_WIDTH]` f32: rotation (row-major), translation, fx, fy, cx, cy, sdd,

@@ -2,10 +2,10 @@
 //!
 //! * [`prepare_kernel`] writes the same `[V, K, PREPARED_WIDTH]` records as the CPU
 //!   [`crate::cpu::project_prepare`] (`[mx, my, a, β, γ, μ, x0, x1, y0, y1]`, zeros if culled).
-//! * [`forward_kernel`]: one cube per (16×16 tile, view). The cube walks the Gaussians in chunks
-//!   of 256, tests each one's pixel box against the tile, compacts the hits in index order with
-//!   a prefix sum in shared memory ([`super::compact`]) and every pixel sums the compacted list:
-//!   binning without a global sort or a host read-back of the pair count, no per-pixel scan of
+//! * [`forward_kernel`]: one cube per (16×16 tile, view). The cube walks the Gaussians in steps
+//!   of 1024 (4 per unit), tests each one's pixel box against the tile, compacts the hits in
+//!   index order with a prefix sum in shared memory ([`super::stage_chunk`]) and every pixel sums
+//!   the compacted list: binning without a global sort or a host read-back of the pair count, no per-pixel scan of
 //!   all Gaussians, and the same summation order as the CPU kernel.
 //! * [`backward_kernel`]: one unit per Gaussian gathers its footprint in every view (pixel
 //!   moments as in the CPU backward), then chains them to its parameters. Every output is owned
@@ -14,7 +14,7 @@
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::stage_chunk;
+use super::{PER_UNIT, STEP, stage_chunk};
 use crate::cpu::PREPARED_WIDTH as PW;
 use crate::cube::math::{ST_CONIC, ST_LEN, ST_MU, finite, splat_backward, splat_state};
 
@@ -109,7 +109,7 @@ pub fn prepare_kernel(
     }
 }
 
-/// `−½ q` of a pixel offset `(dx, dy)` from a splat record at `r` of `rec`, or `+1` (no
+/// `−½ q` of a pixel offset `(dx, dy)` from a splat's factored conic `(a, β, γ)`, or `+1` (no
 /// contribution) beyond the cut-off `q > cut²` — the CPU row kernel's test.
 #[cube]
 fn neg_half_q(a: f32, beta: f32, gamma: f32, dx: f32, dy: f32, cut2: f32) -> f32 {
@@ -148,60 +148,57 @@ pub fn forward_kernel(
     let ty1f = f32::min(ty0f + f32::cast_from(TILE), rows_f);
     let pxf = f32::cast_from(px);
     let pyf = f32::cast_from(py);
-    let mut scan = Shared::<[u32]>::new_slice(CHUNK);
-    let mut recs = Shared::<[f32]>::new_slice(CHUNK * PW);
-    let mut ids = Shared::<[u32]>::new_slice(CHUNK);
+    let mut scan = Shared::<[u32]>::new_slice(2 * CHUNK);
+    let mut ids = Shared::<[u32]>::new_slice(STEP);
     let mut acc = Array::<f32>::new(m);
     for c in 0..m {
         acc[c] = 0.0f32;
     }
     let kk = k as usize;
+    let base = v * kk;
     let mut start = 0usize;
     while start < kk {
-        let j = start + t;
-        let mut hit = false;
-        if j < kk {
-            let o = (v * kk + j) * PW;
-            let x0 = prepared[o + 6];
-            let x1 = f32::min(prepared[o + 7], cols_f);
-            let y0 = prepared[o + 8];
-            let y1 = f32::min(prepared[o + 9], rows_f);
-            hit = x0 < x1 && y0 < y1 && x0 < tx1f && x1 > tx0f && y0 < ty1f && y1 > ty0f;
+        let first = start + t * PER_UNIT;
+        let mut hits = 0u32;
+        for i in 0..PER_UNIT {
+            let j = first + i;
+            if j < kk {
+                let o = (base + j) * PW;
+                let x0 = prepared[o + 6];
+                let x1 = f32::min(prepared[o + 7], cols_f);
+                let y0 = prepared[o + 8];
+                let y1 = f32::min(prepared[o + 9], rows_f);
+                if x0 < x1 && y0 < y1 && x0 < tx1f && x1 > tx0f && y0 < ty1f && y1 > ty0f {
+                    hits |= 1u32 << i as u32;
+                }
+            }
         }
-        let n = stage_chunk(
-            prepared,
-            v * kk * PW,
-            j,
-            hit,
-            t,
-            &mut scan,
-            &mut recs,
-            &mut ids,
-            PW,
-        );
+        let n = stage_chunk(hits, first, t, &mut scan, &mut ids);
         for e in 0..n as usize {
-            let r = e * PW;
-            let inside =
-                pxf >= recs[r + 6] && pxf < recs[r + 7] && pyf >= recs[r + 8] && pyf < recs[r + 9];
+            let gi = ids[e] as usize;
+            let r = (base + gi) * PW;
+            let inside = pxf >= prepared[r + 6]
+                && pxf < prepared[r + 7]
+                && pyf >= prepared[r + 8]
+                && pyf < prepared[r + 9];
             let nhq = neg_half_q(
-                recs[r + 2],
-                recs[r + 3],
-                recs[r + 4],
-                pxf - recs[r],
-                pyf - recs[r + 1],
+                prepared[r + 2],
+                prepared[r + 3],
+                prepared[r + 4],
+                pxf - prepared[r],
+                pyf - prepared[r + 1],
                 cut2,
             );
             if inside && nhq <= 0.0f32 {
                 let g = f32::exp(nhq);
-                let mu = recs[r + 5];
-                let gi = ids[e] as usize;
+                let mu = prepared[r + 5];
                 for c in 0..m {
                     acc[c] += densities[gi * m + c] * mu * g;
                 }
             }
         }
         sync_cube();
-        start += CHUNK;
+        start += STEP;
     }
     if px < cols && py < rows {
         let plane = (rows * cols) as usize;
@@ -212,7 +209,7 @@ pub fn forward_kernel(
     }
 }
 
-/// Gaussians per culling chunk (= units per cube).
+/// Units per cube of the 1D kernels and of the culling scan.
 pub const CHUNK: usize = 256;
 
 #[cube(launch)]

@@ -10,7 +10,7 @@ use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
 use super::math::{ST_LEN, ST_ROT, ST_SCALE, covariances, factors, finite, quat_backward};
-use super::stage_chunk;
+use super::{PER_UNIT, STEP, stage_chunk};
 
 /// Width of one Gaussian's voxel record: `[mean (3), scaled axes w_j = r_j / s_j (3 × 3),
 /// lo (3), hi (3), 0, 0]` (zeros if culled).
@@ -150,9 +150,8 @@ pub fn forward_kernel(
     let cx = centre(grid, 0, ix);
     let cy = centre(grid, 1, iy);
     let cz = centre(grid, 2, iz);
-    let mut scan = Shared::<[u32]>::new_slice(crate::cube::project::CHUNK);
-    let mut recs = Shared::<[f32]>::new_slice(crate::cube::project::CHUNK * VOX_WIDTH);
-    let mut ids = Shared::<[u32]>::new_slice(crate::cube::project::CHUNK);
+    let mut scan = Shared::<[u32]>::new_slice(2 * crate::cube::project::CHUNK);
+    let mut ids = Shared::<[u32]>::new_slice(STEP);
     let mut acc = Array::<f32>::new(m);
     for c in 0..m {
         acc[c] = 0.0f32;
@@ -161,44 +160,54 @@ pub fn forward_kernel(
     let kk = k as usize;
     let mut start = 0usize;
     while start < kk {
-        let j = start + t;
-        let mut hit = false;
-        if j < kk {
-            let o = j * VOX_WIDTH;
-            hit = true;
-            for a in 0..3usize {
-                let l = prepared[o + 12 + a];
-                let h = prepared[o + 15 + a];
-                if !(l < h && l < hi[a] && h > lo[a]) {
-                    hit = false;
+        let first = start + t * PER_UNIT;
+        let mut hits = 0u32;
+        for i in 0..PER_UNIT {
+            let j = first + i;
+            if j < kk {
+                let o = j * VOX_WIDTH;
+                let mut hit = true;
+                for a in 0..3usize {
+                    let l = prepared[o + 12 + a];
+                    let h = prepared[o + 15 + a];
+                    if !(l < h && l < hi[a] && h > lo[a]) {
+                        hit = false;
+                    }
+                }
+                if hit {
+                    hits |= 1u32 << i as u32;
                 }
             }
         }
-        let n = stage_chunk(
-            prepared, 0, j, hit, t, &mut scan, &mut recs, &mut ids, VOX_WIDTH,
-        );
+        let n = stage_chunk(hits, first, t, &mut scan, &mut ids);
         for e in 0..n as usize {
-            let r = e * VOX_WIDTH;
-            let inside = fx >= recs[r + 12]
-                && fx < recs[r + 15]
-                && fy >= recs[r + 13]
-                && fy < recs[r + 16]
-                && fz >= recs[r + 14]
-                && fz < recs[r + 17];
+            let gi = ids[e] as usize;
+            let r = gi * VOX_WIDTH;
+            let inside = fx >= prepared[r + 12]
+                && fx < prepared[r + 15]
+                && fy >= prepared[r + 13]
+                && fy < prepared[r + 16]
+                && fz >= prepared[r + 14]
+                && fz < prepared[r + 17];
             for f in 0..9usize {
-                q[f] = recs[r + 3 + f];
+                q[f] = prepared[r + 3 + f];
             }
-            let nhq = neg_half_q3(&q, cx - recs[r], cy - recs[r + 1], cz - recs[r + 2], cut2);
+            let nhq = neg_half_q3(
+                &q,
+                cx - prepared[r],
+                cy - prepared[r + 1],
+                cz - prepared[r + 2],
+                cut2,
+            );
             if inside && nhq <= 0.0f32 {
                 let g = f32::exp(nhq);
-                let gi = ids[e] as usize;
                 for c in 0..m {
                     acc[c] += densities[gi * m + c] * g;
                 }
             }
         }
         sync_cube();
-        start += crate::cube::project::CHUNK;
+        start += STEP;
     }
     if ix < nx && iy < ny && iz < nz {
         let vol = (nx * ny * nz) as usize;
