@@ -35,8 +35,10 @@ use crate::camera::{Camera, Projection};
 use crate::cpu::PREPARED_WIDTH;
 use crate::options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions};
 use math::CAM_WIDTH;
-use project::{CHUNK, TILE};
+use project::TILE;
 
+/// Units per cube of the 1D kernels and of the culling scan.
+pub const CHUNK: usize = 256;
 /// Gaussians each unit tests per culling step of a forward kernel.
 pub const PER_UNIT: usize = 4;
 /// Gaussians per culling step of a cube: [`CHUNK`] units × [`PER_UNIT`].

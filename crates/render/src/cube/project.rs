@@ -14,7 +14,7 @@
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::{PER_UNIT, STEP, stage_chunk};
+use super::{CHUNK, PER_UNIT, STEP, stage_chunk};
 use crate::cpu::PREPARED_WIDTH as PW;
 use crate::cube::math::{ST_CONIC, ST_LEN, ST_MU, finite, splat_backward, splat_state};
 
@@ -208,9 +208,6 @@ pub fn forward_kernel(
         }
     }
 }
-
-/// Units per cube of the 1D kernels and of the culling scan.
-pub const CHUNK: usize = 256;
 
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]

@@ -10,12 +10,12 @@ use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
 use super::math::{ST_LEN, ST_ROT, ST_SCALE, covariances, factors, finite, quat_backward};
-use super::{PER_UNIT, STEP, stage_chunk};
+use super::{CHUNK, PER_UNIT, STEP, stage_chunk};
 
 /// Width of one Gaussian's voxel record: `[mean (3), scaled axes w_j = r_j / s_j (3 × 3),
 /// lo (3), hi (3), 0, 0]` (zeros if culled).
 pub const VOX_WIDTH: usize = 20;
-/// Brick edge (units per cube: `BX · BY · BZ` = [`crate::cube::project::CHUNK`]).
+/// Brick edge (units per cube: `BX · BY · BZ` = [`CHUNK`]).
 pub const BX: u32 = 8;
 pub const BY: u32 = 8;
 pub const BZ: u32 = 4;
@@ -150,7 +150,7 @@ pub fn forward_kernel(
     let cx = centre(grid, 0, ix);
     let cy = centre(grid, 1, iy);
     let cz = centre(grid, 2, iz);
-    let mut scan = Shared::<[u32]>::new_slice(2 * crate::cube::project::CHUNK);
+    let mut scan = Shared::<[u32]>::new_slice(2 * CHUNK);
     let mut ids = Shared::<[u32]>::new_slice(STEP);
     let mut acc = Array::<f32>::new(m);
     for c in 0..m {
