@@ -15,7 +15,7 @@ use burn::tensor::{DType, Tensor};
 
 use crate::camera::Camera;
 use crate::error::{RenderError, Result};
-use crate::options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions};
+use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
 
 /// Differentiable Gaussian projection and voxelization. Backward kernels are ops of their own so
 /// every backend (CPU: [`crate::cpu`]; wgpu: `crate::cube`) provides them next to the forward.
@@ -247,12 +247,6 @@ pub fn project(
     let (k, _) = gaussians.validate()?;
     validate_cameras(cameras)?;
     options.validate()?;
-    if options.mode == ProjectionMode::Exact && is_gpu(&gaussians.means.device()) {
-        return Err(RenderError::invalid(
-            "mode",
-            "exact-mode projection runs on the CPU backends only; use affine on wgpu",
-        ));
-    }
     let v = cameras.len();
     let screen = match screen {
         Some(s) => {

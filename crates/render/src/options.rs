@@ -11,7 +11,9 @@ pub enum ProjectionMode {
     #[default]
     Affine,
     /// Closed-form integral of the 3D Gaussian along each pixel's ray segment (source or start
-    /// plane to detector): `√(2π/a)·e^{−q/2}·½[erf(u₁) − erf(u₀)]`, evaluated in f64 per pixel.
+    /// plane to detector): `√(2π/a)·e^{−q/2}·½[erf(u₁) − erf(u₀)]`, evaluated per pixel in f64
+    /// on the CPU backends and in f32 on wgpu (offsets taken from the Gaussian's centre, so
+    /// nothing subtracts two large coordinates).
     Exact,
 }
 

@@ -121,6 +121,7 @@ fn neg_half_q3(w: &Array<f32>, d0: f32, d1: f32, d2: f32, cut2: f32) -> f32 {
 #[cube(launch)]
 pub fn forward_kernel(
     prepared: &Tensor<f32>,
+    bounds: &Tensor<f32>,
     densities: &Tensor<f32>,
     grid: &Tensor<f32>,
     out: &mut Tensor<f32>,
@@ -132,8 +133,7 @@ pub fn forward_kernel(
     let nx = u32::cast_from(grid[0]);
     let ny = u32::cast_from(grid[1]);
     let nz = u32::cast_from(grid[2]);
-    let lo = Array::<f32>::new(3usize);
-    let mut lo = lo;
+    let mut lo = Array::<f32>::new(3usize);
     let mut hi = Array::<f32>::new(3usize);
     lo[0] = f32::cast_from(CUBE_POS_X * BX);
     lo[1] = f32::cast_from(CUBE_POS_Y * BY);
@@ -160,53 +160,64 @@ pub fn forward_kernel(
     let kk = k as usize;
     let mut start = 0usize;
     while start < kk {
-        let first = start + t * PER_UNIT;
-        let mut hits = 0u32;
-        for i in 0..PER_UNIT {
-            let j = first + i;
-            if j < kk {
-                let o = j * VOX_WIDTH;
-                let mut hit = true;
-                for a in 0..3usize {
-                    let l = prepared[o + 12 + a];
-                    let h = prepared[o + 15 + a];
-                    if !(l < h && l < hi[a] && h > lo[a]) {
-                        hit = false;
+        // The step's union box (super::step_bounds_kernel): skip the step, uniformly across the
+        // cube, if it misses the brick.
+        let b = (start / STEP) * 6;
+        let mut near = true;
+        for a in 0..3usize {
+            if !(bounds[b + 2 * a] < hi[a] && bounds[b + 2 * a + 1] > lo[a]) {
+                near = false;
+            }
+        }
+        if near {
+            let first = start + t * PER_UNIT;
+            let mut hits = 0u32;
+            for i in 0..PER_UNIT {
+                let j = first + i;
+                if j < kk {
+                    let o = j * VOX_WIDTH;
+                    let mut hit = true;
+                    for a in 0..3usize {
+                        let l = prepared[o + 12 + a];
+                        let h = prepared[o + 15 + a];
+                        if !(l < h && l < hi[a] && h > lo[a]) {
+                            hit = false;
+                        }
+                    }
+                    if hit {
+                        hits |= 1u32 << i as u32;
                     }
                 }
-                if hit {
-                    hits |= 1u32 << i as u32;
+            }
+            let n = stage_chunk(hits, first, t, &mut scan, &mut ids);
+            for e in 0..n as usize {
+                let gi = ids[e] as usize;
+                let r = gi * VOX_WIDTH;
+                let inside = fx >= prepared[r + 12]
+                    && fx < prepared[r + 15]
+                    && fy >= prepared[r + 13]
+                    && fy < prepared[r + 16]
+                    && fz >= prepared[r + 14]
+                    && fz < prepared[r + 17];
+                for f in 0..9usize {
+                    q[f] = prepared[r + 3 + f];
+                }
+                let nhq = neg_half_q3(
+                    &q,
+                    cx - prepared[r],
+                    cy - prepared[r + 1],
+                    cz - prepared[r + 2],
+                    cut2,
+                );
+                if inside && nhq <= 0.0f32 {
+                    let g = f32::exp(nhq);
+                    for c in 0..m {
+                        acc[c] += densities[gi * m + c] * g;
+                    }
                 }
             }
+            sync_cube();
         }
-        let n = stage_chunk(hits, first, t, &mut scan, &mut ids);
-        for e in 0..n as usize {
-            let gi = ids[e] as usize;
-            let r = gi * VOX_WIDTH;
-            let inside = fx >= prepared[r + 12]
-                && fx < prepared[r + 15]
-                && fy >= prepared[r + 13]
-                && fy < prepared[r + 16]
-                && fz >= prepared[r + 14]
-                && fz < prepared[r + 17];
-            for f in 0..9usize {
-                q[f] = prepared[r + 3 + f];
-            }
-            let nhq = neg_half_q3(
-                &q,
-                cx - prepared[r],
-                cy - prepared[r + 1],
-                cz - prepared[r + 2],
-                cut2,
-            );
-            if inside && nhq <= 0.0f32 {
-                let g = f32::exp(nhq);
-                for c in 0..m {
-                    acc[c] += densities[gi * m + c] * g;
-                }
-            }
-        }
-        sync_cube();
         start += STEP;
     }
     if ix < nx && iy < ny && iz < nz {
