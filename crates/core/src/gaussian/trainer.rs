@@ -255,7 +255,9 @@ impl CurveFit {
     }
 }
 
-/// Seconds spent per part of an iteration, summed over a stage.
+/// Seconds spent per part of an iteration, summed over a stage. On the CPU backends each part
+/// is its own work; on wgpu the ops only queue, and the forward and backward are paid where the
+/// loss terms are read back, which is counted under `backward`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Timing {
     pub render: f64,
@@ -397,13 +399,30 @@ pub fn train(
         };
         let t2 = Instant::now();
 
+        // The loss terms are read back once, after the backward pass is queued: one device
+        // sync per iteration on wgpu (absent terms read as 0).
+        let packed = Tensor::cat(
+            [
+                Some(&total),
+                Some(&l_1),
+                dssim.as_ref(),
+                tv.as_ref(),
+                l_curve.as_ref(),
+            ]
+            .map(|t| t.map_or_else(|| total.zeros_like(), |t| t.clone().detach()))
+            .to_vec(),
+            0,
+        );
+        let grads = total.backward();
+        let read = super::host_values(&packed);
         let terms = LossTerms {
-            total: scalar(&total),
-            l1: scalar(&l_1),
-            dssim: dssim.as_ref().map(scalar).unwrap_or(0.0),
-            tv: tv.as_ref().map(scalar).unwrap_or(0.0),
-            curve: l_curve.as_ref().map(scalar).unwrap_or(0.0),
+            total: read[0] as f64,
+            l1: read[1] as f64,
+            dssim: read[2] as f64,
+            tv: read[3] as f64,
+            curve: read[4] as f64,
         };
+        let t3 = Instant::now();
         if !terms.total.is_finite() {
             return Err(Error::invalid(
                 "training",
@@ -413,8 +432,6 @@ pub fn train(
                 ),
             ));
         }
-        let grads = total.backward();
-        let t3 = Instant::now();
 
         let [lm, ls, lr_, ld] = &act.leaves;
         let lr = stage.lr;
@@ -534,10 +551,6 @@ pub fn train(
         psnr: last_score.map(|s| s.0),
         ssim: last_score.map(|s| s.1),
     })
-}
-
-fn scalar(t: &Tensor<1>) -> f64 {
-    t.clone().into_scalar::<f32>() as f64
 }
 
 /// A `p³`-voxel patch of the (normalised) grid with its centre uniform in the volume box shrunk

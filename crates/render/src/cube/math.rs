@@ -384,23 +384,16 @@ pub fn splat_backward(
     }
 }
 
-/// `Σ` and `Σ⁻¹` of Gaussian `i` (after [`factors`] filled `st`): writes the covariance to
-/// `cov[0..9]` and the precision to `prec[0..9]`.
+/// `Σ_aa`, the covariance's diagonal entry on world axis `a`, of the Gaussian whose factors
+/// [`factors`] put in `st`: `Σ_j R_aj² s_j²`.
 #[cube]
-pub fn covariances(st: &Array<f32>, cov: &mut Array<f32>, prec: &mut Array<f32>) {
-    for r in 0..3usize {
-        for c in 0..3usize {
-            let mut sc = 0.0f32;
-            let mut sp = 0.0f32;
-            for j in 0..3usize {
-                let rr = st[ST_ROT + 3 * r + j] * st[ST_ROT + 3 * c + j];
-                sc += rr * st[ST_S2 + j];
-                sp += rr * st[ST_INV_S2 + j];
-            }
-            cov[3 * r + c] = sc;
-            prec[3 * r + c] = sp;
-        }
+pub fn variance(st: &Array<f32>, a: usize) -> f32 {
+    let mut v = 0.0f32;
+    for j in 0..3usize {
+        let r = st[ST_ROT + 3 * a + j];
+        v += r * r * st[ST_S2 + j];
     }
+    v
 }
 
 /// Cell range `[lo, hi)` of the inclusive index interval `[first, last]` on a grid of `n` cells,

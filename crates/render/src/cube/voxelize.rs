@@ -9,7 +9,7 @@
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::math::{ST_LEN, ST_ROT, ST_SCALE, covariances, factors, finite, quat_backward};
+use super::math::{ST_LEN, ST_ROT, ST_SCALE, factors, finite, quat_backward, variance};
 use super::{CHUNK, PER_UNIT, STEP, stage_chunk};
 
 /// Width of one Gaussian's voxel record: `[mean (3), scaled axes w_j = r_j / s_j (3 × 3),
@@ -53,17 +53,14 @@ pub fn prepare_kernel(
         }
     }
     let mut st = Array::<f32>::new(ST_LEN);
-    let mut cov = Array::<f32>::new(9usize);
-    let mut prec = Array::<f32>::new(9usize);
     if ok {
         ok = factors(means, scales, rotations, i, &mut st);
     }
     if ok {
-        covariances(&st, &mut cov, &mut prec);
         let mut span = Array::<f32>::new(6usize);
         let mut good = true;
         for a in 0..3usize {
-            let half = cutoff * f32::sqrt(cov[4 * a]);
+            let half = cutoff * f32::sqrt(variance(&st, a));
             if !finite(half) {
                 good = false;
             }
