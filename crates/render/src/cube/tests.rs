@@ -19,7 +19,7 @@ use crate::cpu::PREPARED_WIDTH;
 use crate::cpu::tests::{Params, cone, parallel};
 use crate::cpu::{project_backward, project_forward, voxelize_backward, voxelize_forward};
 use crate::ops::tests::{tensors as tracked, to_vec, weights};
-use crate::ops::{Gaussians, project, screen_probe, voxelize};
+use crate::ops::{Gaussians, project, voxelize};
 
 /// Gaussians on `device` that require grad.
 fn tensors(p: &Params, device: &Device) -> Gaussians {
@@ -71,8 +71,20 @@ const GRAD_TOL: f64 = 1e-4;
 const THIN_VOXEL_TOL: f64 = 2e-4;
 
 /// Projection forward and backward (with the screen-offset gradient) on the GPU against the
-/// CPU kernels.
+/// CPU kernels, at zero screen offsets (the trainer's probe).
 fn project_parity(name: &str, p: &Params, cams: &[Camera], opts: &ProjectOptions) {
+    let k = p.means.len() / 3;
+    project_parity_with(name, p, cams, opts, &vec![0.0; cams.len() * k * 2]);
+}
+
+/// [`project_parity`] with the given `[V, K, 2]` screen offsets (pixels).
+fn project_parity_with(
+    name: &str,
+    p: &Params,
+    cams: &[Camera],
+    opts: &ProjectOptions,
+    screen: &[f32],
+) {
     let opts = *opts;
     let name = &format!("{name} {:?}", opts.mode);
     let k = p.means.len() / 3;
@@ -80,10 +92,10 @@ fn project_parity(name: &str, p: &Params, cams: &[Camera], opts: &ProjectOptions
     let (rows, cols) = (cams[0].rows, cams[0].cols);
     let device = gpu().autodiff();
     let g = tensors(p, &device);
-    let probe = screen_probe(&g, v);
+    let probe =
+        Tensor::<3>::from_data(TensorData::new(screen.to_vec(), [v, k, 2]), &device).require_grad();
     let img = project(&g, cams, Some(&probe), &opts).expect("project");
-    let screen = vec![0.0f32; v * k * 2];
-    let want = project_forward(&p.slices(), &screen, cams, &opts);
+    let want = project_forward(&p.slices(), screen, cams, &opts);
     check(
         &format!("{name} forward"),
         &to_vec(img.clone()),
@@ -96,7 +108,7 @@ fn project_parity(name: &str, p: &Params, cams: &[Camera], opts: &ProjectOptions
         &device,
     );
     let grads = (img * rt).sum().backward();
-    let want = project_backward(&p.slices(), &screen, cams, &opts, &r);
+    let want = project_backward(&p.slices(), screen, cams, &opts, &r);
     let floor = rotation_floor(p, &want.scales);
     let tol = match opts.mode {
         ProjectionMode::Affine => GRAD_TOL,
@@ -335,6 +347,14 @@ fn projection_matches_cpu_cone_and_parallel() {
         // One channel (the structural projection of stage 1) and many channels (8).
         project_parity("cone M=1", &p1, &cone_views[..1], &opts);
         project_parity("cone M=8", &p8, &cone_views[..1], &opts);
+        // Non-zero screen offsets (within ±1 px): they shift the centres, and the cone-beam gradient
+        // picks up their depth dependence.
+        let offsets = weights(2 * 2 * 300, 13)
+            .iter()
+            .map(|w| 2.0 * w)
+            .collect::<Vec<_>>();
+        project_parity_with("cone offsets", &p, &cone_views, &opts, &offsets);
+        project_parity_with("parallel offsets", &p, &par_views, &opts, &offsets);
     }
 }
 
