@@ -171,7 +171,9 @@ pub fn forward_kernel(
     for c in 0..m {
         acc[c] = 0.0f32;
     }
-    let mut ray = Array::<f32>::new(RAY_LEN);
+    // The exact mode's ray state (a one-element stub in the affine variant, which never uses it).
+    let ray_len = comptime![if exact { RAY_LEN } else { 1usize }];
+    let mut ray = Array::<f32>::new(ray_len);
     let kk = k as usize;
     let base = v * kk;
     let steps = (kk + STEP - 1) / STEP;
