@@ -209,32 +209,36 @@ pub fn forward_kernel(
                     && pyf < prepared[r + bx + 3];
                 // The pixel's value is Σ_c ρ_c · scale · g: affine scale = μ, g = e^{−q/2} (the
                 // CPU's order of operations); exact scale = 1, g = the segment integral.
-                let mut hit = false;
-                let mut scale = 1.0f32;
-                let mut g = 0.0f32;
-                if exact {
-                    if inside && exact_ray(prepared, r, cams, v, pxf, pyf, cut2, &mut ray) {
-                        hit = true;
-                        g = ray[RAY_VALUE];
+                // Only pixels inside the box evaluate: a warp (a SIMD group on lavapipe) whose
+                // pixels all miss skips the work.
+                if inside {
+                    let mut hit = false;
+                    let mut scale = 1.0f32;
+                    let mut g = 0.0f32;
+                    if exact {
+                        if exact_ray(prepared, r, cams, v, pxf, pyf, cut2, &mut ray) {
+                            hit = true;
+                            g = ray[RAY_VALUE];
+                        }
+                    } else {
+                        let nhq = neg_half_q(
+                            prepared[r + 2],
+                            prepared[r + 3],
+                            prepared[r + 4],
+                            pxf - prepared[r],
+                            pyf - prepared[r + 1],
+                            cut2,
+                        );
+                        if nhq <= 0.0f32 {
+                            hit = true;
+                            scale = prepared[r + 5];
+                            g = f32::exp(nhq);
+                        }
                     }
-                } else {
-                    let nhq = neg_half_q(
-                        prepared[r + 2],
-                        prepared[r + 3],
-                        prepared[r + 4],
-                        pxf - prepared[r],
-                        pyf - prepared[r + 1],
-                        cut2,
-                    );
-                    if inside && nhq <= 0.0f32 {
-                        hit = true;
-                        scale = prepared[r + 5];
-                        g = f32::exp(nhq);
-                    }
-                }
-                if hit {
-                    for c in 0..m {
-                        acc[c] += densities[gi * m + c] * scale * g;
+                    if hit {
+                        for c in 0..m {
+                            acc[c] += densities[gi * m + c] * scale * g;
+                        }
                     }
                 }
             }

@@ -196,20 +196,24 @@ pub fn forward_kernel(
                     && fy < prepared[r + 16]
                     && fz >= prepared[r + 14]
                     && fz < prepared[r + 17];
-                for f in 0..9usize {
-                    q[f] = prepared[r + 3 + f];
-                }
-                let nhq = neg_half_q3(
-                    &q,
-                    cx - prepared[r],
-                    cy - prepared[r + 1],
-                    cz - prepared[r + 2],
-                    cut2,
-                );
-                if inside && nhq <= 0.0f32 {
-                    let g = f32::exp(nhq);
-                    for c in 0..m {
-                        acc[c] += densities[gi * m + c] * g;
+                // Only voxels inside the box evaluate: a warp (a SIMD group on lavapipe) whose
+                // voxels all miss skips the work.
+                if inside {
+                    for f in 0..9usize {
+                        q[f] = prepared[r + 3 + f];
+                    }
+                    let nhq = neg_half_q3(
+                        &q,
+                        cx - prepared[r],
+                        cy - prepared[r + 1],
+                        cz - prepared[r + 2],
+                        cut2,
+                    );
+                    if nhq <= 0.0f32 {
+                        let g = f32::exp(nhq);
+                        for c in 0..m {
+                            acc[c] += densities[gi * m + c] * g;
+                        }
                     }
                 }
             }
