@@ -152,9 +152,47 @@ fn four_dsg_with_a_held_out_channel_then_queries() {
         "train.json",
         "gaussians.safetensors",
         "gaussians.ply",
+        "geometry.safetensors",
     ] {
         assert!(run.join(f).is_file(), "{f} missing");
     }
+    // Continuing from the stage-1 checkpoint gives the same volumes; the option is refused for
+    // a classic method.
+    let again = dir.path().join("again");
+    let (ok, t) = prism(&[
+        "recon",
+        path(&rc),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&again),
+        "--from-geometry",
+        path(&run),
+    ]);
+    assert!(ok, "{t}");
+    assert!(
+        std::fs::read(run.join("90keV.npy")).unwrap()
+            == std::fs::read(again.join("90keV.npy")).unwrap()
+    );
+    let sart = dir.path().join("sart.yaml");
+    std::fs::write(
+        &sart,
+        "method: sart
+iterations: 2
+",
+    )
+    .unwrap();
+    let (ok, t) = prism(&[
+        "recon",
+        path(&sart),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&again),
+        "--from-geometry",
+        path(&run),
+    ]);
+    assert!(!ok && t.contains("--from-geometry"), "{t}");
     let h: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("holdout.json")).unwrap()).unwrap();
     assert_eq!(h[0]["label"], "70keV");

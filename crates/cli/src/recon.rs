@@ -1,6 +1,7 @@
 //! `prism recon <config.yaml> -s <scene_dir> -o <run_dir>`: reconstruct every channel of a scene
 //! with a classic method (`fdk | sart | cgls`, see `prism_core::classic::recon`) or a Gaussian
-//! one (`r2gs | 4dsg-stage1`, see `prism_core::gaussian::run`).
+//! one (`r2gs | 4dsg-stage1 | 4dsg`, see `prism_core::gaussian::run`; `--from-geometry`
+//! continues a 4D-SG run from its stage-1 checkpoint).
 
 use prism_core::classic::recon::METRICS_FILE;
 use prism_core::gaussian::DeviceChoice;
@@ -24,6 +25,11 @@ pub struct ReconArgs {
     /// in a prism built with `--features wgpu` (a GPU, or Mesa's lavapipe without one).
     #[arg(long = "device")]
     device: Option<DeviceArg>,
+    /// `4dsg` / `4dsg-stage1` only: skip stage 1 and continue from its checkpoint
+    /// (`geometry.safetensors`, or a run directory holding one) written by an earlier run with the
+    /// same scene and stage-1 settings; the result is that of an uninterrupted run.
+    #[arg(long = "from-geometry", value_name = "RUN_DIR|FILE")]
+    from_geometry: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -45,7 +51,18 @@ pub fn run(args: ReconArgs) -> anyhow::Result<()> {
         MethodConfig::Classic(_) => DeviceChoice::Cpu.device()?,
     };
     let scene = Scene::load(&args.scene)?;
-    match config.run(&scene, &args.out, &device)? {
+    let report = match (&config, &args.from_geometry) {
+        (MethodConfig::Gaussian(c), Some(from)) => {
+            prism_core::gaussian::run::run_from(c, &scene, &args.out, &device, Some(from))?
+        }
+        (MethodConfig::Classic(_), Some(_)) => {
+            anyhow::bail!(
+                "--from-geometry applies to the Gaussian methods `4dsg` and `4dsg-stage1`"
+            )
+        }
+        _ => config.run(&scene, &args.out, &device)?,
+    };
+    match report {
         Some(report) => {
             for c in &report.channels {
                 eprintln!(

@@ -24,7 +24,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         config = config.at_paper_scale();
     }
     let start = Instant::now();
-    let bar = ProgressBar::new_spinner().with_style(
+    let bar = ProgressBar::with_draw_target(None, prism_core::progress::target()).with_style(
         ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
             .expect("static template"),
     );

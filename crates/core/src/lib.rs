@@ -12,6 +12,7 @@ pub mod method;
 pub mod metrics;
 pub mod phantom;
 pub mod physics;
+pub mod progress;
 pub mod report;
 pub mod scene;
 pub mod simulate;

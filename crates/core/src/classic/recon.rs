@@ -17,7 +17,7 @@ use crate::geometry::Geometry;
 use crate::metrics::{Border, SsimParams, projection_metrics, psnr, ssim_3d};
 use crate::scene::{Scene, SpectralCoordinate};
 use crate::{Error, Result};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use ndarray::{Array3, Axis};
 use serde::{Deserialize, Serialize};
 use std::fs;
@@ -317,13 +317,10 @@ pub fn run(config: &ReconConfig, scene: &Scene, out_dir: &Path) -> Result<Option
     fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
     let iters = config.resolved_iterations();
     let bar = if iters > 0 {
-        let b = ProgressBar::new((iters * scene.n_channels()) as u64);
-        if let Ok(style) =
-            ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} {elapsed_precise}")
-        {
-            b.set_style(style.progress_chars("=> "));
-        }
-        b
+        crate::progress::bar(
+            (iters * scene.n_channels()) as u64,
+            "{msg:>12} [{bar:30}] {pos}/{len} {elapsed_precise}",
+        )
     } else {
         ProgressBar::hidden()
     };

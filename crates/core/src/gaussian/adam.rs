@@ -57,6 +57,24 @@ impl AdamParam {
         }
     }
 
+    /// A parameter with saved optimiser state: moments of the value's shape and the number of
+    /// steps taken (the bias corrections' exponent).
+    pub fn with_state(value: Tensor<2>, m1: Tensor<2>, m2: Tensor<2>, steps: i32) -> Self {
+        debug_assert_eq!(value.dims(), m1.dims());
+        debug_assert_eq!(value.dims(), m2.dims());
+        AdamParam {
+            value,
+            m1,
+            m2,
+            steps,
+        }
+    }
+
+    /// The optimiser state: (first moment, second moment, steps taken).
+    pub fn state(&self) -> (&Tensor<2>, &Tensor<2>, i32) {
+        (&self.m1, &self.m2, self.steps)
+    }
+
     /// One Adam step with learning rate `lr` and gradient `grad` (same shape as the value).
     pub fn step(&mut self, grad: Tensor<2>, lr: f64) {
         self.steps += 1;

@@ -59,7 +59,7 @@ impl DensifyConfig {
 }
 
 /// What one densification did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct DensifyCounts {
     pub cloned: usize,
     pub split: usize,

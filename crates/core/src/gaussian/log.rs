@@ -2,7 +2,7 @@
 //! run time can be plotted for any method.
 
 use crate::{Error, Result};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -12,7 +12,7 @@ use std::time::Instant;
 pub const LOG_FILE: &str = "log.jsonl";
 
 /// Loss terms (mean over the iterations since the previous record).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct LossTerms {
     pub total: f64,
     pub l1: f64,
@@ -40,6 +40,14 @@ pub struct LogRecord {
     /// Mean 3-D PSNR (dB) / SSIM over the stage's channels, when references exist.
     pub psnr: Option<f64>,
     pub ssim: Option<f64>,
+}
+
+/// A [`RunLog`]'s state: its clocks and the records written so far (JSON lines).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SavedLog {
+    pub wall_s: f64,
+    pub eval_s: f64,
+    pub lines: Vec<String>,
 }
 
 /// The run clock and the open log file.
@@ -93,10 +101,24 @@ impl RunLog {
     /// stage-2 variant trained from a shared stage-1 geometry thus reports the whole run,
     /// geometry included, and not the other variants' time.
     pub fn fork(&self, dir: &Path) -> Result<RunLog> {
+        RunLog::resume(dir, &self.saved())
+    }
+
+    /// The log's state, to continue it later ([`RunLog::resume`]).
+    pub fn saved(&self) -> SavedLog {
+        SavedLog {
+            wall_s: self.wall_s(),
+            eval_s: self.eval_s,
+            lines: self.lines.clone(),
+        }
+    }
+
+    /// A log in `dir` that continues `saved`: its records first, its clocks running on.
+    pub fn resume(dir: &Path, saved: &SavedLog) -> Result<RunLog> {
         let mut log = RunLog::create(dir)?;
-        log.base_wall_s = self.wall_s();
-        log.eval_s = self.eval_s;
-        for line in &self.lines {
+        log.base_wall_s = saved.wall_s;
+        log.eval_s = saved.eval_s;
+        for line in &saved.lines {
             log.write_line(line.clone())?;
         }
         Ok(log)

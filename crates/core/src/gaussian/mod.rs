@@ -12,6 +12,7 @@
 
 pub mod ablation;
 pub mod adam;
+pub mod checkpoint;
 pub mod config;
 pub mod densify;
 pub mod host;

@@ -7,8 +7,11 @@
 //! A run directory receives, besides the classic outputs (`<label>.npy` in mm⁻¹,
 //! `config.resolved.yaml`, `metrics.json`): `log.jsonl` (error vs time, see [`super::log`]),
 //! `train.json` (per-stage timing split into render / loss / backward / optimiser / densify),
-//! and the models (`gaussians[-<label>].safetensors` + `.ply`, see [`super::io`]).
+//! and the models (`gaussians[-<label>].safetensors` + `.ply`, see [`super::io`]); `4dsg` and
+//! `4dsg-stage1` also leave stage 1's checkpoint (`geometry.safetensors`, see
+//! [`super::checkpoint`]), from which [`run_from`] can continue.
 
+use super::checkpoint::{self, Checkpoint, Fingerprint, GEOMETRY_FILE};
 use super::config::{GaussianConfig, GaussianMethod, StructuralSource};
 use super::host::{inverse_softplus, softplus};
 use super::init::{density_scale, from_fdk};
@@ -31,7 +34,7 @@ use crate::scene::Scene;
 use crate::{Error, Result};
 use burn::optim::AdamConfig;
 use burn::tensor::{Device, Int, Tensor, TensorData};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use ndarray::{Array3, ArrayView3, Axis, s};
 use prism_gscnet::SpectralGrid;
 use serde::Serialize;
@@ -58,13 +61,48 @@ pub fn run(
     out_dir: &Path,
     device: &Device,
 ) -> Result<Option<ReconReport>> {
+    run_from(config, scene, out_dir, device, None)
+}
+
+/// [`run`], for `4dsg` and `4dsg-stage1` optionally continuing from a stage-1 checkpoint
+/// ([`super::checkpoint`]: a file, or a run directory holding one) instead of training stage 1.
+/// Without one, stage 1 writes its checkpoint into `out_dir`.
+pub fn run_from(
+    config: &GaussianConfig,
+    scene: &Scene,
+    out_dir: &Path,
+    device: &Device,
+    from_geometry: Option<&Path>,
+) -> Result<Option<ReconReport>> {
     let setup = Setup::new(config, scene)?;
-    let mut out = Output::create(out_dir, config, None)?;
+    if from_geometry.is_some() && config.method == GaussianMethod::R2gs {
+        return Err(Error::invalid(
+            "method",
+            "`r2gs` has no shared geometry: --from-geometry needs `4dsg` or `4dsg-stage1`",
+        ));
+    }
+    let fingerprint = Fingerprint::new(config, &setup.observed)?;
+    // Read the checkpoint before the run directory is created: a refused checkpoint leaves
+    // nothing behind, and a checkpoint inside `out_dir` is not overwritten first.
+    let resumed = from_geometry
+        .map(|arg| checkpoint::load(&checkpoint::locate(arg), &fingerprint, device))
+        .transpose()?;
+    let mut out = match &resumed {
+        Some(c) => Output::resume(out_dir, config, c)?,
+        None => Output::create(out_dir, config, None)?,
+    };
     let mut ctx = setup.ctx(config, &mut out, device);
     let (observed, predicted) = match config.method {
         GaussianMethod::R2gs => (r2gs(&mut ctx)?, None),
         GaussianMethod::Stage1 | GaussianMethod::FourDsg => {
-            let shared = geometry_stage(&mut ctx)?;
+            let shared = match resumed {
+                Some(c) => c.shared,
+                None => {
+                    let shared = geometry_stage(&mut ctx)?;
+                    ctx.save_geometry(&shared, &fingerprint)?;
+                    shared
+                }
+            };
             spectral_stage(&mut ctx, shared)?
         }
     };
@@ -149,6 +187,18 @@ impl Output {
         })
     }
 
+    /// Create `dir` continuing a stage-1 checkpoint's log and summary.
+    fn resume(dir: &Path, config: &GaussianConfig, c: &Checkpoint) -> Result<Self> {
+        fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        write_resolved(dir, config)?;
+        Ok(Output {
+            dir: dir.to_path_buf(),
+            log: RunLog::resume(dir, &c.log)?,
+            bar: progress_bar(),
+            stages: vec![c.stage.clone()],
+        })
+    }
+
     /// Write `train.json`, every channel's volume (observed ones fitted, held-out ones predicted)
     /// and `metrics.json` for the observed channels (held-out ones are in `holdout.json`).
     pub fn finish(
@@ -227,6 +277,20 @@ impl Ctx<'_> {
         Ok(())
     }
 
+    /// Write stage 1's checkpoint ([`super::checkpoint`]) into the run directory. The write is
+    /// not training time: it is booked with evaluation.
+    fn save_geometry(&mut self, shared: &SharedGeometry, fingerprint: &Fingerprint) -> Result<()> {
+        let o = &mut *self.out;
+        let c = Checkpoint {
+            shared: shared.clone(),
+            stage: o.stages.last().cloned().expect("stage 1 just ran"),
+            log: o.log.saved(),
+        };
+        let path = o.dir.join(GEOMETRY_FILE);
+        o.log
+            .evaluating(|| checkpoint::save(&path, &c, fingerprint))
+    }
+
     fn info(&self, channels: &[usize]) -> ModelInfo {
         let coords: Vec<f64> = self
             .full
@@ -300,13 +364,10 @@ fn scene_without(scene: &Scene, held: &[usize]) -> Scene {
 }
 
 fn progress_bar() -> ProgressBar {
-    let b = ProgressBar::new(0);
-    if let Ok(style) =
-        ProgressStyle::with_template("{msg} [{bar:25}] {pos}/{len} {elapsed_precise} ETA {eta}")
-    {
-        b.set_style(style.progress_chars("=> "));
-    }
-    b
+    crate::progress::bar(
+        0,
+        "{msg} [{bar:25}] {pos}/{len} {elapsed_precise} ETA {eta}",
+    )
 }
 
 /// FDK (ram-lak) of `projections` (`[view][row][col]` for the listed views of `geometry`).
@@ -483,7 +544,7 @@ fn structural(config: &GaussianConfig, scene: &Scene) -> Result<(Vec<usize>, Vec
 
 /// 4D-SG stage 1's result: the shared geometry (with the common raw density) and its world.
 #[derive(Clone)]
-pub(super) struct SharedGeometry {
+pub struct SharedGeometry {
     pub model: GaussianModel,
     pub world: World,
     /// The views of the structural projections.

@@ -338,3 +338,87 @@ fn stage_two_runs_on_the_ndarray_backend() {
     assert!(log.iter().any(|r| r.0 == "gscnet"), "{log:?}");
     assert!(log.iter().all(|r| r.2.is_finite()), "{log:?}");
 }
+
+/// A 4D-SG run continued from its own stage-1 checkpoint gives the uninterrupted run's log and
+/// volumes bit for bit (the checkpoint carries the Adam moments the spectral stage continues,
+/// after densification moved them); a checkpoint from other stage-1 settings or another scene
+/// is refused before anything is written, while spectral-stage settings may differ.
+#[test]
+fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
+    let scene = three_channel_scene();
+    let dev = test_device();
+    let mut cfg = tiny(GaussianMethod::FourDsg);
+    cfg.iterations = 30;
+    cfg.stage2.iterations = 10;
+    cfg.stage2.curve_model.width = 8;
+    cfg.stage2.curve_model.depth = 1;
+    let a = tempfile::tempdir().unwrap();
+    run::run(&cfg, &scene, a.path(), &dev).unwrap();
+    let ckpt = a.path().join(checkpoint::GEOMETRY_FILE);
+    assert!(ckpt.is_file());
+
+    let b = tempfile::tempdir().unwrap();
+    run::run_from(&cfg, &scene, b.path(), &dev, Some(a.path())).unwrap();
+    assert_eq!(losses(a.path()), losses(b.path()));
+    assert!(losses(b.path()).iter().any(|r| r.0 == "geometry"));
+    for ch in &scene.channels {
+        let file = format!("{}.npy", ch.label);
+        assert!(
+            std::fs::read(a.path().join(&file)).unwrap()
+                == std::fs::read(b.path().join(&file)).unwrap(),
+            "{file} differs"
+        );
+    }
+    let stages = |d: &std::path::Path| -> serde_json::Value {
+        let t: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join(run::TRAIN_FILE)).unwrap())
+                .unwrap();
+        t["stages"].clone()
+    };
+    assert_eq!(
+        stages(a.path())[0],
+        stages(b.path())[0],
+        "stage-1 summary carried over"
+    );
+    assert_eq!(stages(b.path()).as_array().unwrap().len(), 2);
+
+    // Spectral-stage settings may change; stage-1 settings and the scene may not.
+    let mut other_stage2 = cfg.clone();
+    other_stage2.stage2.iterations = 2;
+    let c = tempfile::tempdir().unwrap();
+    run::run_from(&other_stage2, &scene, c.path(), &dev, Some(&ckpt)).unwrap();
+    let mut other_init = cfg.clone();
+    other_init.init.n_points = 400;
+    let d = tempfile::tempdir().unwrap();
+    let refused = d.path().join("refused");
+    let e = run::run_from(&other_init, &scene, &refused, &dev, Some(a.path()))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains(checkpoint::GEOMETRY_FILE) && e.contains("`init`") && e.contains("400"),
+        "{e}"
+    );
+    assert!(
+        !refused.exists(),
+        "a refused checkpoint leaves no run directory"
+    );
+    let mut other_scene = scene.clone();
+    other_scene.projections[[0, 0, 20, 20]] += 0.01;
+    let e = run::run_from(&cfg, &other_scene, &refused, &dev, Some(a.path()))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("scene"), "{e}");
+    let e = run::run_from(
+        &tiny(GaussianMethod::R2gs),
+        &scene,
+        &refused,
+        &dev,
+        Some(a.path()),
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(e.contains("r2gs"), "{e}");
+}

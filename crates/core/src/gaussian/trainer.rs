@@ -258,7 +258,7 @@ impl CurveFit {
 /// Seconds spent per part of an iteration, summed over a stage. On the CPU backends each part
 /// is its own work; on wgpu the ops only queue, and the forward and backward are paid where the
 /// loss terms are read back, which is counted under `backward`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Timing {
     pub render: f64,
     pub loss: f64,
@@ -268,7 +268,7 @@ pub struct Timing {
 }
 
 /// Summary of one stage.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StageReport {
     pub stage: String,
     pub channel: String,
