@@ -197,8 +197,7 @@ pub fn save(path: &Path, c: &Checkpoint, fingerprint: &Fingerprint) -> Result<()
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
     .collect();
-    safetensors::serialize_to_file(views, Some(meta), path)
-        .map_err(|e| Error::field(path, ".", format!("writing safetensors failed: {e}")))
+    super::io::write_safetensors(path, views, meta)
 }
 
 /// The checkpoint file a `--from-geometry` argument names: the file, or [`GEOMETRY_FILE`] in a

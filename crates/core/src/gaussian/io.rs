@@ -103,8 +103,31 @@ pub fn save_model(
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
     .collect();
-    safetensors::serialize_to_file(views, Some(meta), path)
-        .map_err(|e| Error::field(path, ".", format!("writing safetensors failed: {e}")))
+    write_safetensors(path, views, meta)
+}
+
+/// Write a safetensors file whose bytes depend only on its content. safetensors writes the
+/// metadata in hash-map order, which changes from run to run; the header is rewritten with its
+/// keys sorted (serde_json's objects are ordered maps) and padded to 8 bytes as before.
+pub(super) fn write_safetensors(
+    path: &Path,
+    views: Vec<(&str, TensorView)>,
+    meta: HashMap<String, String>,
+) -> Result<()> {
+    let fail = |e: String| Error::field(path, ".", format!("writing safetensors failed: {e}"));
+    let bytes = safetensors::serialize(views, Some(meta)).map_err(|e| fail(e.to_string()))?;
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("an 8-byte header length")) as usize;
+    let header: serde_json::Value =
+        serde_json::from_slice(&bytes[8..8 + n]).map_err(|e| fail(e.to_string()))?;
+    let mut text = header.to_string();
+    while !text.len().is_multiple_of(8) {
+        text.push(' ');
+    }
+    let mut out = Vec::with_capacity(8 + text.len() + bytes.len() - 8 - n);
+    out.extend_from_slice(&(text.len() as u64).to_le_bytes());
+    out.extend_from_slice(text.as_bytes());
+    out.extend_from_slice(&bytes[8 + n..]);
+    fs::write(path, out).map_err(|e| Error::io(path, e))
 }
 
 /// A model read back from [`save_model`]'s file.

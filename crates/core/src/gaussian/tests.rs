@@ -176,6 +176,10 @@ fn initial_scales_are_the_lattice_spacing_and_models_round_trip() {
         geometry: g.clone(),
     };
     save_model(&path, &model, None, &world, &info).unwrap();
+    // Same model, same bytes (safetensors alone writes its metadata in hash-map order).
+    let again = dir.path().join("again.safetensors");
+    save_model(&again, &model, None, &world, &info).unwrap();
+    assert!(std::fs::read(&path).unwrap() == std::fs::read(&again).unwrap());
     let back = load_model(&path, &dev).unwrap();
     assert_eq!(back.model.to_host(), host);
     assert_eq!(back.world, world);
