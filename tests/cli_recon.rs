@@ -266,6 +266,34 @@ fn ablation_runs_every_variant_from_one_stage_one() {
         assert!(r["train_s"].as_f64().unwrap() >= stage1_s);
     }
     assert!(t.contains("| gscnet |") && t.contains("| mlp |"), "{t}");
+    // The shared stage 1 leaves its checkpoint; a second study can start from it, and gives the
+    // same variants the same scores.
+    assert!(out.join("geometry/geometry.safetensors").is_file());
+    let again = dir.path().join("again");
+    let (ok, t) = prism(&[
+        "ablate",
+        "curve-model",
+        path(&rc),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&again),
+        "--from-geometry",
+        path(&out.join("geometry")),
+    ]);
+    assert!(ok, "{t}");
+    let psnrs = |d: &std::path::Path| -> Vec<f64> {
+        let r: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("ablation.json")).unwrap())
+                .unwrap();
+        r["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r["psnr"].as_f64().unwrap())
+            .collect()
+    };
+    assert_eq!(psnrs(&out), psnrs(&again));
     // Only `4dsg` has a stage 2 to ablate.
     std::fs::write(&rc, "method: sart\niterations: 2\n").unwrap();
     let (ok, t) = prism(&[

@@ -1,9 +1,10 @@
 //! `prism ablate <freeze|curve-model> <config.yaml> -s <scene_dir> -o <out_dir>`: 4D-SG stage-2
 //! ablations from one shared stage 1 (see `prism_core::gaussian::ablation`).
 
+use crate::recon::DeviceArg;
 use anyhow::bail;
+use prism_core::gaussian::GaussianMethod;
 use prism_core::gaussian::ablation::{Study, ablate, markdown};
-use prism_core::gaussian::{GaussianMethod, cpu_device};
 use prism_core::method::MethodConfig;
 use prism_core::scene::Scene;
 use std::path::PathBuf;
@@ -26,14 +27,23 @@ pub struct Args {
     /// Scene directory (scene.yaml + .npy arrays).
     #[arg(short = 's', long = "scene")]
     scene: PathBuf,
-    /// Output directory: `geometry/` (the shared stage 1), one run directory per variant,
+    /// Output directory: `geometry/` (the shared stage 1 and its checkpoint), one run directory per variant,
     /// `ablation.json` and `ablation.md`.
     #[arg(short = 'o', long = "out")]
     out: PathBuf,
+    /// Compute device (overrides the config's `device`): `cpu`, or `wgpu` in a prism built with
+    /// `--features wgpu`.
+    #[arg(long = "device")]
+    device: Option<DeviceArg>,
+    /// Skip stage 1 and start every variant from this stage-1 checkpoint
+    /// (`geometry.safetensors`, or a run directory holding one, e.g. a `4dsg` recon run or an
+    /// earlier ablation's `geometry/`) of the same scene and stage-1 settings.
+    #[arg(long = "from-geometry", value_name = "RUN_DIR|FILE")]
+    from_geometry: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let config = match MethodConfig::load(&args.config)? {
+    let mut config = match MethodConfig::load(&args.config)? {
         MethodConfig::Gaussian(c) if c.method == GaussianMethod::FourDsg => c,
         _ => bail!(
             "{}: field `method`: ablations vary stage 2 and need `method: 4dsg`",
@@ -45,7 +55,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         StudyArg::Freeze => Study::Freeze,
         StudyArg::CurveModel => Study::CurveModel,
     };
-    let report = ablate(&config, study, &scene, &args.out, &cpu_device())?;
+    if let Some(d) = args.device {
+        config.device = d.choice();
+    }
+    let device = config.device.device()?;
+    let report = ablate(
+        &config,
+        study,
+        &scene,
+        &args.out,
+        &device,
+        args.from_geometry.as_deref(),
+    )?;
     print!("{}", markdown(&report));
     eprintln!("→ {}", args.out.join("ablation.json").display());
     Ok(())

@@ -32,19 +32,26 @@ pub struct ReconArgs {
     from_geometry: Option<PathBuf>,
 }
 
+/// `--device` of the Gaussian methods.
 #[derive(Clone, Copy, clap::ValueEnum)]
-enum DeviceArg {
+pub enum DeviceArg {
     Cpu,
     Wgpu,
+}
+
+impl DeviceArg {
+    pub fn choice(self) -> DeviceChoice {
+        match self {
+            DeviceArg::Cpu => DeviceChoice::Cpu,
+            DeviceArg::Wgpu => DeviceChoice::Wgpu,
+        }
+    }
 }
 
 pub fn run(args: ReconArgs) -> anyhow::Result<()> {
     let mut config = MethodConfig::load(&args.config)?;
     if let (MethodConfig::Gaussian(c), Some(d)) = (&mut config, args.device) {
-        c.device = match d {
-            DeviceArg::Cpu => DeviceChoice::Cpu,
-            DeviceArg::Wgpu => DeviceChoice::Wgpu,
-        };
+        c.device = d.choice();
     }
     let device = match &config {
         MethodConfig::Gaussian(c) => c.device.device()?,

@@ -9,6 +9,7 @@
 //! Variants differ only in `stage2` (and the same seed), so differences are the ablated
 //! choice's alone.
 
+use super::checkpoint::{self, Fingerprint};
 use super::config::{Freeze, GaussianConfig, GaussianMethod};
 use super::run::{Output, Setup, geometry_stage, spectral_stage};
 use crate::classic::recon::ReconReport;
@@ -131,13 +132,15 @@ pub struct AblationReport {
     pub rows: Vec<AblationRow>,
 }
 
-/// Run `study` around `base` (a `4dsg` config) on `scene` into `out_dir`.
+/// Run `study` around `base` (a `4dsg` config) on `scene` into `out_dir`, training stage 1 or
+/// continuing from its checkpoint `from_geometry` (a file, or a run directory holding one).
 pub fn ablate(
     base: &GaussianConfig,
     study: Study,
     scene: &Scene,
     out_dir: &Path,
     device: &Device,
+    from_geometry: Option<&Path>,
 ) -> Result<AblationReport> {
     if base.method != GaussianMethod::FourDsg {
         return Err(Error::invalid(
@@ -155,8 +158,23 @@ pub fn ablate(
             "a stage-2 ablation needs at least two observed channels (with one, stage 2 is skipped)",
         ));
     }
-    let mut root = Output::create(&out_dir.join("geometry"), base, None)?;
-    let shared = geometry_stage(&mut setup.ctx(base, &mut root, device))?;
+    // Stage 1 once (or from a checkpoint of the same scene and stage-1 settings); its
+    // checkpoint goes to `geometry/` like a recon run's.
+    let fingerprint = Fingerprint::new(base, &setup.observed)?;
+    let resumed = from_geometry
+        .map(|arg| checkpoint::load(&checkpoint::locate(arg), &fingerprint, device))
+        .transpose()?;
+    let geometry_dir = out_dir.join("geometry");
+    let (mut root, shared) = match resumed {
+        Some(c) => (Output::resume(&geometry_dir, base, &c)?, c.shared),
+        None => {
+            let mut root = Output::create(&geometry_dir, base, None)?;
+            let mut ctx = setup.ctx(base, &mut root, device);
+            let shared = geometry_stage(&mut ctx)?;
+            ctx.save_geometry(&shared, &fingerprint)?;
+            (root, shared)
+        }
+    };
     root.bar.finish_and_clear();
     root.log.stop();
     let stage1_s = root.log.train_s();

@@ -188,7 +188,7 @@ impl Output {
     }
 
     /// Create `dir` continuing a stage-1 checkpoint's log and summary.
-    fn resume(dir: &Path, config: &GaussianConfig, c: &Checkpoint) -> Result<Self> {
+    pub(super) fn resume(dir: &Path, config: &GaussianConfig, c: &Checkpoint) -> Result<Self> {
         fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         write_resolved(dir, config)?;
         Ok(Output {
@@ -279,7 +279,11 @@ impl Ctx<'_> {
 
     /// Write stage 1's checkpoint ([`super::checkpoint`]) into the run directory. The write is
     /// not training time: it is booked with evaluation.
-    fn save_geometry(&mut self, shared: &SharedGeometry, fingerprint: &Fingerprint) -> Result<()> {
+    pub(super) fn save_geometry(
+        &mut self,
+        shared: &SharedGeometry,
+        fingerprint: &Fingerprint,
+    ) -> Result<()> {
         let o = &mut *self.out;
         let c = Checkpoint {
             shared: shared.clone(),
