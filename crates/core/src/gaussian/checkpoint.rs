@@ -20,6 +20,7 @@
 use super::adam::AdamParam;
 use super::config::GaussianConfig;
 use super::host::ScaleBounds;
+use super::io::TensorFile;
 use super::log::SavedLog;
 use super::model::GaussianModel;
 use super::run::SharedGeometry;
@@ -29,11 +30,10 @@ use super::{host_values, upload};
 use crate::scene::Scene;
 use crate::{Error, Result};
 use burn::tensor::Device;
-use safetensors::{Dtype, SafeTensors, tensor::TensorView};
+use safetensors::{Dtype, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 use std::collections::HashMap;
-use std::fs;
 use std::path::{Path, PathBuf};
 
 /// File name of the checkpoint in a run directory.
@@ -213,28 +213,8 @@ pub fn locate(arg: &Path) -> PathBuf {
 /// Read a checkpoint for a run whose stage 1 would have had `wanted`; errors name the file and
 /// the field, and say what differs when the checkpoint belongs to another scene or settings.
 pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkpoint> {
-    let buf = fs::read(path).map_err(|e| Error::io(path, e))?;
-    let st = SafeTensors::deserialize(&buf)
-        .map_err(|e| Error::field(path, ".", format!("not a safetensors file: {e}")))?;
-    let (_, header) = SafeTensors::read_metadata(&buf)
-        .map_err(|e| Error::field(path, ".", format!("unreadable header: {e}")))?;
-    let meta = header.metadata().clone().unwrap_or_default();
-    let key = |k: &str| -> Result<&String> {
-        meta.get(k)
-            .ok_or_else(|| Error::field(path, format!("metadata.{k}"), "missing"))
-    };
-    if key("format")? != FORMAT {
-        return Err(Error::field(
-            path,
-            "metadata.format",
-            format!("expected `{FORMAT}`, got `{}`", key("format")?),
-        ));
-    }
-    fn parse<T: for<'de> Deserialize<'de>>(path: &Path, k: &str, s: &str) -> Result<T> {
-        serde_json::from_str(s)
-            .map_err(|e| Error::field(path, format!("metadata.{k}"), e.to_string()))
-    }
-    let fingerprint: Fingerprint = parse(path, "fingerprint", key("fingerprint")?)?;
+    let f = TensorFile::open(path, FORMAT)?;
+    let fingerprint: Fingerprint = f.json("fingerprint")?;
     if let Some(why) = fingerprint.mismatch(wanted) {
         return Err(Error::field(
             path,
@@ -242,7 +222,7 @@ pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkp
             format!("this stage-1 checkpoint does not belong to this run: {why}"),
         ));
     }
-    let steps: Vec<i32> = parse(path, "steps", key("steps")?)?;
+    let steps: Vec<i32> = f.json("steps")?;
     if steps.len() != GROUPS.len() {
         return Err(Error::field(
             path,
@@ -250,40 +230,27 @@ pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkp
             format!("expected {} entries, got {}", GROUPS.len(), steps.len()),
         ));
     }
-    let world: World = parse(path, "world", key("world")?)?;
-    let bounds: ScaleBounds = parse(path, "bounds", key("bounds")?)?;
+    let world: World = f.json("world")?;
+    let bounds: ScaleBounds = f.json("bounds")?;
     bounds.validate().map_err(|e| e.in_file(path))?;
-    let views: Vec<usize> = parse(path, "views", key("views")?)?;
-    let stage: StageReport = parse(path, "stage", key("stage")?)?;
-    let log: SavedLog = parse(path, "log", key("log")?)?;
+    let views: Vec<usize> = f.json("views")?;
+    let stage: StageReport = f.json("stage")?;
+    let log: SavedLog = f.json("log")?;
 
-    let mut k = None;
-    let mut tensor = |name: &str, width: usize| -> Result<Vec<f32>> {
-        let t = st
-            .tensor(name)
-            .map_err(|e| Error::field(path, name, e.to_string()))?;
-        let shape = t.shape();
-        let rows = shape.first().copied().unwrap_or(0);
-        if t.dtype() != Dtype::F32
-            || shape.len() != 2
-            || shape[1] != width
-            || *k.get_or_insert(rows) != rows
-        {
+    // Every tensor has the same K rows, and only finite entries.
+    let k = f.rows("means", 3)?.len() / 3;
+    if k == 0 {
+        return Err(Error::field(path, "means", "no Gaussians"));
+    }
+    let tensor = |name: &str, width: usize| -> Result<Vec<f32>> {
+        let v = f.rows(name, width)?;
+        if v.len() != k * width {
             return Err(Error::field(
                 path,
                 name,
-                format!(
-                    "expected f32 [{}, {width}], got {:?} {shape:?}",
-                    k.map_or("K".into(), |k: usize| k.to_string()),
-                    t.dtype()
-                ),
+                format!("expected {k} rows like `means`, got {}", v.len() / width),
             ));
         }
-        let v: Vec<f32> = t
-            .data()
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-            .collect();
         if let Some(i) = v.iter().position(|x| !x.is_finite()) {
             return Err(Error::field(path, name, format!("entry {i} is not finite")));
         }
@@ -291,7 +258,7 @@ pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkp
     };
     let mut params = Vec::new();
     for ((name, width), s) in GROUPS.iter().zip(&steps) {
-        let mut part = |suffix: &str| -> Result<_> {
+        let part = |suffix: &str| -> Result<_> {
             Ok(upload(
                 tensor(&format!("{name}{suffix}"), *width)?,
                 *width,
@@ -307,9 +274,6 @@ pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkp
     }
     let [means, scales, rotations, densities] =
         <[AdamParam; 4]>::try_from(params).unwrap_or_else(|_| unreachable!("four groups"));
-    if k == Some(0) {
-        return Err(Error::field(path, "means", "no Gaussians"));
-    }
     Ok(Checkpoint {
         shared: SharedGeometry {
             model: GaussianModel {

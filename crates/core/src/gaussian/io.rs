@@ -137,39 +137,58 @@ pub struct LoadedModel {
     pub info: ModelInfo,
 }
 
-/// Read a safetensors model; errors name the file and the tensor or metadata key.
-pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
-    let buf = fs::read(path).map_err(|e| Error::io(path, e))?;
-    let st = SafeTensors::deserialize(&buf)
-        .map_err(|e| Error::field(path, ".", format!("not a safetensors file: {e}")))?;
-    let (_, meta) = SafeTensors::read_metadata(&buf)
-        .map_err(|e| Error::field(path, ".", format!("unreadable header: {e}")))?;
-    let meta = meta.metadata().clone().unwrap_or_default();
-    let key = |k: &str| -> Result<&String> {
-        meta.get(k)
-            .ok_or_else(|| Error::field(path, format!("metadata.{k}"), "missing"))
-    };
-    if key("format")? != FORMAT {
-        return Err(Error::field(
-            path,
-            "metadata.format",
-            format!("expected `{FORMAT}`, got `{}`", key("format")?),
-        ));
-    }
-    let num = |k: &str| -> Result<f64> {
-        key(k)?
-            .parse::<f64>()
-            .map_err(|e| Error::field(path, format!("metadata.{k}"), e.to_string()))
-    };
-    let info: ModelInfo = serde_json::from_str(key("info")?)
-        .map_err(|e| Error::field(path, "metadata.info", e.to_string()))?;
-    let tensor = |name: &str, cols: usize| -> Result<Vec<f32>> {
-        let t = st
-            .tensor(name)
-            .map_err(|e| Error::field(path, name, e.to_string()))?;
-        if t.dtype() != Dtype::F32 || t.shape().len() != 2 || t.shape()[1] != cols {
+/// A safetensors file of a Prism `format`, read whole: its string metadata and float32 row
+/// tensors, with errors that name the file and the key.
+pub(super) struct TensorFile<'p> {
+    path: &'p Path,
+    buf: Vec<u8>,
+    meta: HashMap<String, String>,
+}
+
+impl<'p> TensorFile<'p> {
+    /// Read `path` and check that its `metadata.format` is `format`.
+    pub fn open(path: &'p Path, format: &str) -> Result<Self> {
+        let buf = fs::read(path).map_err(|e| Error::io(path, e))?;
+        SafeTensors::deserialize(&buf)
+            .map_err(|e| Error::field(path, ".", format!("not a safetensors file: {e}")))?;
+        let (_, header) = SafeTensors::read_metadata(&buf)
+            .map_err(|e| Error::field(path, ".", format!("unreadable header: {e}")))?;
+        let meta = header.metadata().clone().unwrap_or_default();
+        let f = TensorFile { path, buf, meta };
+        let got = f.meta("format")?;
+        if got != format {
             return Err(Error::field(
                 path,
+                "metadata.format",
+                format!("expected `{format}`, got `{got}`"),
+            ));
+        }
+        Ok(f)
+    }
+
+    /// The metadata string under `key`.
+    pub fn meta(&self, key: &str) -> Result<&str> {
+        self.meta
+            .get(key)
+            .map(String::as_str)
+            .ok_or_else(|| Error::field(self.path, format!("metadata.{key}"), "missing"))
+    }
+
+    /// The metadata under `key`, parsed as JSON (a bare number is JSON too).
+    pub fn json<T: for<'de> Deserialize<'de>>(&self, key: &str) -> Result<T> {
+        serde_json::from_str(self.meta(key)?)
+            .map_err(|e| Error::field(self.path, format!("metadata.{key}"), e.to_string()))
+    }
+
+    /// The f32 tensor `name` of shape `[rows, cols]` (any `rows`), row-major.
+    pub fn rows(&self, name: &str, cols: usize) -> Result<Vec<f32>> {
+        let st = SafeTensors::deserialize(&self.buf).expect("checked when opened");
+        let t = st
+            .tensor(name)
+            .map_err(|e| Error::field(self.path, name, e.to_string()))?;
+        if t.dtype() != Dtype::F32 || t.shape().len() != 2 || t.shape()[1] != cols {
+            return Err(Error::field(
+                self.path,
                 name,
                 format!(
                     "expected f32 [K, {cols}], got {:?} {:?}",
@@ -182,7 +201,15 @@ pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
             .chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect())
-    };
+    }
+}
+
+/// Read a safetensors model; errors name the file and the tensor or metadata key.
+pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
+    let f = TensorFile::open(path, FORMAT)?;
+    let num = |k: &str| -> Result<f64> { f.json(k) };
+    let info: ModelInfo = f.json("info")?;
+    let tensor = |name: &str, cols: usize| f.rows(name, cols);
     let m = info.channels.len();
     let host = HostGaussians {
         channels: m,
