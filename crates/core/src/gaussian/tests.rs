@@ -414,6 +414,16 @@ fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
         .unwrap()
         .to_string();
     assert!(e.contains("scene"), "{e}");
+    // A trained model is not a checkpoint.
+    let model_file = a.path().join("gaussians.safetensors");
+    let e = run::run_from(&cfg, &scene, &refused, &dev, Some(&model_file))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("gaussians.safetensors") && e.contains("prism-geometry/1"),
+        "{e}"
+    );
     let e = run::run_from(
         &tiny(GaussianMethod::R2gs),
         &scene,
