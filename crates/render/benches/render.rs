@@ -2,10 +2,11 @@
 //! `--features wgpu`) on the wgpu backend's CubeCL kernels (the Burn-primitive reference is then
 //! skipped).
 //!
-//! Scene: 50 000 Gaussians from an FDK-like initialisation of a 128³ (1 mm voxels) phantom —
+//! Scene: 50 000 Gaussians (`BENCH_K`) from an FDK-like initialisation of a 128³ (1 mm voxels) phantom —
 //! centres sampled from the phantom's voxels with jitter, in raster order, isotropic scales from the mean distance
 //! to the 3 nearest neighbours (R²-Gaussian's rule), identity rotations, density 0.15 × phantom.
-//! Cone beam DSO 1000 mm, DSD 1500 mm, one 256² view of 1 mm pixels.
+//! Cone beam DSO 1000 mm, DSD 1500 mm, one view of a 256 mm detector with 256² pixels
+//! (`BENCH_DETECTOR=512`: 512² pixels of 0.5 mm, the paper's detector).
 //!
 //! Measures (ms per iteration, median of the runs):
 //! * project forward + backward of one view (loss ½‖I − I₀‖², all five gradients read back);
@@ -14,7 +15,8 @@
 //!   custom op on a small case, as a time ratio.
 //!
 //! Run: `cargo bench -p prism-render --bench render` (env `ITERS` sets the iteration count,
-//! `BENCH_ONLY=affine,exact,voxelize,reference` a subset, `BENCH_DEVICE=flex|wgpu` the device).
+//! `BENCH_ONLY=affine,exact,voxelize,reference` a subset, `BENCH_DEVICE=flex|wgpu` the device,
+//! `BENCH_K` the Gaussian count, `BENCH_DETECTOR` the detector's pixels per side).
 
 use std::time::Instant;
 
@@ -315,11 +317,20 @@ fn bench_device() -> Device {
     }
 }
 
+/// A positive integer from the environment, or `default`.
+fn env_usize(name: &str, default: usize) -> usize {
+    match std::env::var(name) {
+        Ok(v) => match v.parse() {
+            Ok(n) if n > 0 => n,
+            _ => panic!("{name}={v}: expected a positive integer"),
+        },
+        Err(_) => default,
+    }
+}
+
 fn main() {
-    let iters: usize = std::env::var("ITERS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(10);
+    let iters = env_usize("ITERS", 10);
+    let det = env_usize("BENCH_DETECTOR", 256);
     let ad = bench_device();
     let gpu = prism_render::is_gpu(&ad);
     println!(
@@ -329,7 +340,7 @@ fn main() {
     );
 
     let t0 = Instant::now();
-    let host = fdk_like_init(50_000, 42);
+    let host = fdk_like_init(env_usize("BENCH_K", 50_000), 42);
     let k = host.means.len() / 3;
     let mean_scale = host.scales.iter().map(|&v| v as f64).sum::<f64>() / host.scales.len() as f64;
     println!(
@@ -352,7 +363,7 @@ fn main() {
         if !enabled(name) {
             continue;
         }
-        let cams = [view(0.4, Projection::Cone, 256, 1.0)];
+        let cams = [view(0.4, Projection::Cone, det, 256.0 / det as f64)];
         let target = project(&g, &cams, None, &opts)
             .unwrap()
             .detach()
@@ -368,7 +379,7 @@ fn main() {
             let _ = project_step(&g, &cams, &target, &opts);
         });
         println!(
-            "project {name} cone 256², K = {k}: forward {fwd:.1} ms (CPU {fwd_cpu:.0} ms), \
+            "project {name} cone {det}², K = {k}: forward {fwd:.1} ms (CPU {fwd_cpu:.0} ms), \
              forward+backward {step:.1} ms/iter (CPU {step_cpu:.0} ms); {evals} Gaussian–pixel \
              evaluations per pass → {:.0} M/s forward, {:.0} M/s forward+backward (2 passes)",
             evals as f64 / fwd / 1e3,
