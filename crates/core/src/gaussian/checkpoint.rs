@@ -137,7 +137,7 @@ fn scene_digest(scene: &Scene) -> String {
     format!("{h:016x}")
 }
 
-/// Everything stage 1 hands on, besides the geometry.
+/// Everything stage 1 hands on: the shared geometry, its stage summary and the log so far.
 pub struct Checkpoint {
     pub shared: SharedGeometry,
     pub stage: StageReport,
