@@ -9,9 +9,8 @@
 //! Variants differ only in `stage2` (and the same seed), so differences are the ablated
 //! choice's alone.
 
-use super::checkpoint::{self, Fingerprint};
 use super::config::{Freeze, GaussianConfig, GaussianMethod};
-use super::run::{Output, Setup, geometry_stage, spectral_stage};
+use super::run::{Output, Setup, shared_geometry, spectral_stage};
 use crate::classic::recon::ReconReport;
 use crate::scene::Scene;
 use crate::{Error, Result};
@@ -158,23 +157,14 @@ pub fn ablate(
             "a stage-2 ablation needs at least two observed channels (with one, stage 2 is skipped)",
         ));
     }
-    // Stage 1 once (or from a checkpoint of the same scene and stage-1 settings); its
-    // checkpoint goes to `geometry/` like a recon run's.
-    let fingerprint = Fingerprint::new(base, &setup.observed)?;
-    let resumed = from_geometry
-        .map(|arg| checkpoint::load(&checkpoint::locate(arg), &fingerprint, device))
-        .transpose()?;
-    let geometry_dir = out_dir.join("geometry");
-    let (mut root, shared) = match resumed {
-        Some(c) => (Output::resume(&geometry_dir, base, &c)?, c.shared),
-        None => {
-            let mut root = Output::create(&geometry_dir, base, None)?;
-            let mut ctx = setup.ctx(base, &mut root, device);
-            let shared = geometry_stage(&mut ctx)?;
-            ctx.save_geometry(&shared, &fingerprint)?;
-            (root, shared)
-        }
-    };
+    // Stage 1 once (or from a checkpoint); its checkpoint goes to `geometry/`.
+    let (mut root, shared) = shared_geometry(
+        &setup,
+        base,
+        &out_dir.join("geometry"),
+        device,
+        from_geometry,
+    )?;
     root.bar.finish_and_clear();
     root.log.stop();
     let stage1_s = root.log.train_s();

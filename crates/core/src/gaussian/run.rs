@@ -81,32 +81,42 @@ pub fn run_from(
             "`r2gs` has no shared geometry: --from-geometry needs `4dsg` or `4dsg-stage1`",
         ));
     }
-    let fingerprint = Fingerprint::new(config, &setup.observed)?;
-    // Read the checkpoint before the run directory is created: a refused checkpoint leaves
-    // nothing behind, and a checkpoint inside `out_dir` is not overwritten first.
-    let resumed = from_geometry
-        .map(|arg| checkpoint::load(&checkpoint::locate(arg), &fingerprint, device))
-        .transpose()?;
-    let mut out = match &resumed {
-        Some(c) => Output::resume(out_dir, config, c)?,
-        None => Output::create(out_dir, config, None)?,
-    };
-    let mut ctx = setup.ctx(config, &mut out, device);
-    let (observed, predicted) = match config.method {
-        GaussianMethod::R2gs => (r2gs(&mut ctx)?, None),
+    let (mut out, shared) = match config.method {
+        GaussianMethod::R2gs => (Output::create(out_dir, config, None)?, None),
         GaussianMethod::Stage1 | GaussianMethod::FourDsg => {
-            let shared = match resumed {
-                Some(c) => c.shared,
-                None => {
-                    let shared = geometry_stage(&mut ctx)?;
-                    ctx.save_geometry(&shared, &fingerprint)?;
-                    shared
-                }
-            };
-            spectral_stage(&mut ctx, shared)?
+            let (out, shared) = shared_geometry(&setup, config, out_dir, device, from_geometry)?;
+            (out, Some(shared))
         }
     };
+    let mut ctx = setup.ctx(config, &mut out, device);
+    let (observed, predicted) = match shared {
+        None => (r2gs(&mut ctx)?, None),
+        Some(shared) => spectral_stage(&mut ctx, shared)?,
+    };
     out.finish(config, &setup, observed, predicted)
+}
+
+/// The run directory `dir` with stage 1 done: trained there (its checkpoint saved with it), or
+/// continued from the checkpoint `from_geometry` (a file, or a run directory holding one) of the
+/// same scene and stage-1 settings. The checkpoint is read before `dir` is created, so a refused
+/// one leaves nothing behind and one inside `dir` is not overwritten first.
+pub(super) fn shared_geometry(
+    setup: &Setup,
+    config: &GaussianConfig,
+    dir: &Path,
+    device: &Device,
+    from_geometry: Option<&Path>,
+) -> Result<(Output, SharedGeometry)> {
+    let fingerprint = Fingerprint::new(config, &setup.observed)?;
+    if let Some(arg) = from_geometry {
+        let c = checkpoint::load(&checkpoint::locate(arg), &fingerprint, device)?;
+        return Ok((Output::resume(dir, config, &c)?, c.shared));
+    }
+    let mut out = Output::create(dir, config, None)?;
+    let mut ctx = setup.ctx(config, &mut out, device);
+    let shared = geometry_stage(&mut ctx)?;
+    ctx.save_geometry(&shared, &fingerprint)?;
+    Ok((out, shared))
 }
 
 /// One volume per channel (mm⁻¹, `[z][y][x]`).
@@ -188,7 +198,7 @@ impl Output {
     }
 
     /// Create `dir` continuing a stage-1 checkpoint's log and summary.
-    pub(super) fn resume(dir: &Path, config: &GaussianConfig, c: &Checkpoint) -> Result<Self> {
+    fn resume(dir: &Path, config: &GaussianConfig, c: &Checkpoint) -> Result<Self> {
         fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         write_resolved(dir, config)?;
         Ok(Output {
@@ -279,11 +289,7 @@ impl Ctx<'_> {
 
     /// Write stage 1's checkpoint ([`super::checkpoint`]) into the run directory. The write is
     /// not training time: it is booked with evaluation.
-    pub(super) fn save_geometry(
-        &mut self,
-        shared: &SharedGeometry,
-        fingerprint: &Fingerprint,
-    ) -> Result<()> {
+    fn save_geometry(&mut self, shared: &SharedGeometry, fingerprint: &Fingerprint) -> Result<()> {
         let o = &mut *self.out;
         let c = Checkpoint {
             shared: shared.clone(),
