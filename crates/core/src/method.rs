@@ -90,6 +90,17 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("iterations"), "{e}");
+        let e = MethodConfig::from_yaml("method: r2gs\nprojection: {cutoff: 0}\n", f)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("run.yaml") && e.contains("projection.cutoff"),
+            "{e}"
+        );
+        let e = MethodConfig::from_yaml("method: r2gs\nprojection: {mode: curved}\n", f)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("run.yaml") && e.contains("curved"), "{e}");
     }
 
     #[test]

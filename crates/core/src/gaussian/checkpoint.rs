@@ -18,7 +18,7 @@
 //! scene or different stage-1 settings is refused, naming what differs).
 
 use super::adam::AdamParam;
-use super::config::GaussianConfig;
+use super::config::{GaussianConfig, GaussianMethod};
 use super::host::ScaleBounds;
 use super::io::TensorFile;
 use super::log::SavedLog;
@@ -95,14 +95,19 @@ impl Fingerprint {
         let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
         keys.sort();
         keys.dedup();
+        // A setting added after the checkpoint was written is absent from it; the checkpoint was
+        // trained with that setting's default.
+        let defaults = serde_json::to_value(GaussianConfig::new(GaussianMethod::FourDsg))
+            .expect("the default config serialises");
+        let stored = |k: &String| a.get(k).or_else(|| defaults.get(k));
         let differ: Vec<String> = keys
             .into_iter()
-            .filter(|k| a.get(*k) != b.get(*k))
+            .filter(|k| stored(k) != b.get(*k))
             .map(|k| {
                 let show = |v: Option<&Value>| v.map_or("(absent)".into(), Value::to_string);
                 format!(
                     "`{k}` (checkpoint {}, config {})",
-                    show(a.get(k)),
+                    show(stored(k)),
                     show(b.get(k))
                 )
             })
@@ -289,4 +294,45 @@ pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkp
         stage,
         log,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gaussian::config::{ProjectionConfig, ProjectionKind};
+
+    #[test]
+    fn settings_a_checkpoint_predates_count_as_their_defaults() {
+        let scene = crate::classic::recon::tests::scene();
+        let config = GaussianConfig::new(GaussianMethod::FourDsg);
+        let mut old = Fingerprint::new(&config, &scene).unwrap();
+        // A checkpoint written before `projection` existed.
+        old.stage1.as_object_mut().unwrap().remove("projection");
+        assert_eq!(
+            old.mismatch(&Fingerprint::new(&config, &scene).unwrap()),
+            None
+        );
+        let mut exact = config.clone();
+        exact.projection = ProjectionConfig {
+            mode: ProjectionKind::Exact,
+            ..ProjectionConfig::default()
+        };
+        let why = old
+            .mismatch(&Fingerprint::new(&exact, &scene).unwrap())
+            .unwrap();
+        assert!(
+            why.contains("`projection`") && why.contains("affine") && why.contains("exact"),
+            "{why}"
+        );
+        // Other settings still count.
+        let mut seeded = config;
+        seeded.seed = 7;
+        let why = old
+            .mismatch(&Fingerprint::new(&seeded, &scene).unwrap())
+            .unwrap();
+        assert!(
+            why.contains("`seed`") && !why.contains("projection"),
+            "{why}"
+        );
+    }
 }

@@ -9,6 +9,7 @@ use super::trainer::{LearningRates, LossConfig};
 use crate::scene::Scene;
 use crate::{Error, Result};
 use prism_gscnet::CurveModelConfig;
+use prism_render::{ProjectOptions, ProjectionMode};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -76,6 +77,10 @@ pub struct GaussianConfig {
     pub lr: LearningRates,
     #[serde(default)]
     pub loss: LossConfig,
+    /// How training views are rendered (`mode: affine | exact`, `cutoff`); the trained model
+    /// keeps it, so queries render the same way.
+    #[serde(default)]
+    pub projection: ProjectionConfig,
     /// Adaptive density control; `null` turns it off.
     #[serde(default = "default_densify")]
     pub densify: Option<DensifyConfig>,
@@ -95,6 +100,59 @@ pub struct GaussianConfig {
     /// `prism` built with `--features wgpu`). `prism recon --device` overrides it.
     #[serde(default)]
     pub device: DeviceChoice,
+}
+
+/// How a Gaussian's line integral is computed per pixel (YAML `projection:`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ProjectionKind {
+    /// R²-Gaussian's local-affine splat (exact for parallel beam; for cone beam the lateral
+    /// profile is approximated to first order around the centre ray).
+    #[default]
+    Affine,
+    /// The closed-form integral of the 3D Gaussian along every pixel's ray (no cone-beam
+    /// approximation; on the CPU about 16× the cost of `affine`).
+    Exact,
+}
+
+/// Projection settings of training and of queries (YAML `projection:`; every field optional).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ProjectionConfig {
+    pub mode: ProjectionKind,
+    /// A pixel receives a Gaussian only if its ray passes within `cutoff` standard deviations of
+    /// the centre (upstream 3: the dropped tail is e^{−cutoff²/2} = 1.1 % of the peak).
+    pub cutoff: f64,
+}
+
+impl Default for ProjectionConfig {
+    fn default() -> Self {
+        let o = ProjectOptions::default();
+        ProjectionConfig {
+            mode: ProjectionKind::Affine,
+            cutoff: o.cutoff,
+        }
+    }
+}
+
+impl ProjectionConfig {
+    /// The render op's options.
+    pub fn options(&self) -> ProjectOptions {
+        ProjectOptions {
+            mode: match self.mode {
+                ProjectionKind::Affine => ProjectionMode::Affine,
+                ProjectionKind::Exact => ProjectionMode::Exact,
+            },
+            cutoff: self.cutoff,
+            ..ProjectOptions::default()
+        }
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        self.options()
+            .validate()
+            .map_err(|e| Error::invalid(format!("projection.{}", e.field), e.message))
+    }
 }
 
 /// The compute device of a Gaussian run.
@@ -248,6 +306,7 @@ impl GaussianConfig {
             scale_bounds: default_bounds(),
             lr: LearningRates::default(),
             loss: LossConfig::default(),
+            projection: ProjectionConfig::default(),
             densify: default_densify(),
             eval_every: default_eval_every(),
             structural: StructuralSource::Auto,
@@ -333,6 +392,7 @@ impl GaussianConfig {
         self.scale_bounds.validate()?;
         self.lr.validate()?;
         self.loss.validate()?;
+        self.projection.validate()?;
         if let Some(d) = &self.densify {
             d.validate()?;
         }

@@ -6,13 +6,14 @@
 //!   (`prism-gaussians/1`), `world_scale` (normalised units per mm), `density_scale` (mm⁻¹ per
 //!   normalised density unit), `scale_min`, `scale_max` (normalised units) and `info` (JSON
 //!   [`ModelInfo`]: channel labels, τ and physical coordinates of the density columns, the scan
-//!   geometry). Physical values: centre_mm = means / world_scale,
+//!   geometry, the projection settings it was trained with). Physical values: centre_mm = means / world_scale,
 //!   σ_mm = (min + (max − min)·sigmoid(scales_raw)) / world_scale,
 //!   μ (mm⁻¹) = softplus(densities_raw) · density_scale.
 //! * **PLY** (binary little-endian, for point-cloud viewers): per vertex `x y z` (mm),
 //!   `scale_0..2` (σ in mm), `rot_0..3` (unit quaternion w, x, y, z) and one `density_<c>`
 //!   property per channel (mm⁻¹).
 
+use super::config::ProjectionConfig;
 use super::host::{HostGaussians, ScaleBounds, softplus};
 use super::model::GaussianModel;
 use super::world::World;
@@ -42,6 +43,10 @@ pub struct ModelInfo {
     pub coordinate_range: [f64; 2],
     /// The scan geometry (millimetres), for voxelizing and rendering queries.
     pub geometry: Geometry,
+    /// How the model was trained to project; queries render the same way (absent in files
+    /// written before the setting existed, which were all trained with the default).
+    #[serde(default)]
+    pub projection: ProjectionConfig,
 }
 
 impl ModelInfo {

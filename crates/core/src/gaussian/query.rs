@@ -59,14 +59,15 @@ pub fn raw_at(
     Ok(v.reshape([k, 1]))
 }
 
-/// Render `views` of `geometry` for one density column `raw` `[K, 1]`: line integrals
-/// `[view][row][col]`.
+/// Render `views` of `geometry` for one density column `raw` `[K, 1]` with `options`: line
+/// integrals `[view][row][col]`.
 pub fn render_views(
     model: &GaussianModel,
     raw: Tensor<2>,
     world: &World,
     geometry: &Geometry,
     views: &[usize],
+    options: &ProjectOptions,
 ) -> Result<Array3<f32>> {
     let g_world = world.geometry(geometry);
     let mut gaussians = model.activate(None).gaussians;
@@ -77,8 +78,7 @@ pub fn render_views(
     // A few views per call keeps the [V, 1, rows, cols] buffers small.
     for (chunk_i, chunk) in views.chunks(8).enumerate() {
         let cams: Vec<_> = chunk.iter().map(|&v| g_world.camera(v)).collect();
-        let img =
-            project(&gaussians, &cams, None, &ProjectOptions::default()).map_err(render_error)?;
+        let img = project(&gaussians, &cams, None, options).map_err(render_error)?;
         let data = super::host_values(&img);
         for (j, _) in chunk.iter().enumerate() {
             let dst = out.index_axis_mut(Axis(0), chunk_i * 8 + j);
@@ -143,7 +143,14 @@ pub fn score_holdout(
         let (proj_psnr, proj_ssim) = if views.is_empty() {
             (None, None)
         } else {
-            let pred = render_views(h.model, raw, h.world, &full.geometry, &views)?;
+            let pred = render_views(
+                h.model,
+                raw,
+                h.world,
+                &full.geometry,
+                &views,
+                &h.info.projection.options(),
+            )?;
             let truth = full.channel_projections(c).select(Axis(0), &views);
             let (p, s) = projection_metrics(pred.view(), truth.view(), &SsimParams::default())?;
             (Some(p), Some(s))
@@ -248,6 +255,13 @@ impl Query {
         let l = &self.loaded;
         let raw = self.raw(at, extrapolate)?;
         let views: Vec<usize> = (0..l.info.geometry.views()).collect();
-        render_views(&l.model, raw, &l.world, &l.info.geometry, &views)
+        render_views(
+            &l.model,
+            raw,
+            &l.world,
+            &l.info.geometry,
+            &views,
+            &l.info.projection.options(),
+        )
     }
 }

@@ -329,6 +329,7 @@ impl Ctx<'_> {
                 .to_string(),
             coordinate_range: [lo, hi],
             geometry: self.scene.geometry.clone(),
+            projection: self.config.projection,
         }
     }
 }
@@ -348,6 +349,7 @@ fn base_stage<'s>(
         learn: Learnable::ALL,
         lr: &c.lr,
         loss: &c.loss,
+        projection: c.projection.options(),
         densify: c.densify.as_ref(),
         eval_every: c.eval_every,
         grid: &scene.geometry.volume,

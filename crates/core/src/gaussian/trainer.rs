@@ -216,6 +216,8 @@ pub struct Stage<'a> {
     pub learn: Learnable,
     pub lr: &'a LearningRates,
     pub loss: &'a LossConfig,
+    /// How the training views are rendered.
+    pub projection: ProjectOptions,
     pub densify: Option<&'a DensifyConfig>,
     /// Evaluate (voxelize and score) every this many iterations and at the end; 0: only at the end.
     pub eval_every: usize,
@@ -318,7 +320,7 @@ pub fn train(
     let window = SsimWindow::new(&device.clone().autodiff());
     let mut rng = ChaCha8Rng::seed_from_u64(stage.seed);
     let mut stack: Vec<usize> = Vec::new();
-    let opts = ProjectOptions::default();
+    let opts = stage.projection;
     let ng = stage.world.volume(stage.grid);
     let bbox = ng.bounds();
     let start_train = log.train_s();
