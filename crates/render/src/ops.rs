@@ -29,12 +29,14 @@ use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
     NdArray: cfg(feature = "ndarray"),
     Flex: cfg(feature = "flex"),
     Cube: cfg(feature = "wgpu"),
+    Fusion: cfg(feature = "fusion"),
     Autodiff
 )]
 pub trait GaussianOps: Backend {
     /// The prepared state of every view and Gaussian for [`GaussianOps::gaussian_project`] and
     /// [`GaussianOps::gaussian_project_backward`] (CPU backends: `[V, K, cpu::PREPARED_WIDTH]`,
     /// see [`crate::cpu::project_prepare`]). Not differentiable.
+    #[fusion(dtype = means, shape = fusion_shapes::prepared(means, cameras, options))]
     fn gaussian_project_prepare(
         means: FloatTensor<Self>,
         scales: FloatTensor<Self>,
@@ -47,6 +49,7 @@ pub trait GaussianOps: Backend {
 
     /// Line-integral images `[V, M, rows, cols]` of the Gaussians in every camera.
     #[allow(clippy::too_many_arguments)]
+    #[fusion(dtype = means, shape = fusion_shapes::images(densities, cameras))]
     fn gaussian_project(
         means: FloatTensor<Self>,
         scales: FloatTensor<Self>,
@@ -60,6 +63,13 @@ pub trait GaussianOps: Backend {
 
     /// Gradients `(means, scales, rotations, densities, screen)` of `⟨grad, project(..)⟩`.
     #[allow(clippy::too_many_arguments, clippy::type_complexity)]
+    #[fusion(meta = |means, scales, rotations, densities, screen, _prepared, _cameras, _options, _grad| (
+        means.clone(),
+        scales.clone(),
+        rotations.clone(),
+        densities.clone(),
+        screen.clone(),
+    ))]
     fn gaussian_project_backward(
         means: FloatTensor<Self>,
         scales: FloatTensor<Self>,
@@ -79,6 +89,7 @@ pub trait GaussianOps: Backend {
     );
 
     /// Density volumes `[M, nz, ny, nx]` on `grid`.
+    #[fusion(dtype = means, shape = fusion_shapes::volumes(densities, grid))]
     fn gaussian_voxelize(
         means: FloatTensor<Self>,
         scales: FloatTensor<Self>,
@@ -90,6 +101,12 @@ pub trait GaussianOps: Backend {
 
     /// Gradients `(means, scales, rotations, densities)` of `⟨grad, voxelize(..)⟩`.
     #[allow(clippy::type_complexity)]
+    #[fusion(meta = |means, scales, rotations, densities, _grid, _options, _grad| (
+        means.clone(),
+        scales.clone(),
+        rotations.clone(),
+        densities.clone(),
+    ))]
     fn gaussian_voxelize_backward(
         means: FloatTensor<Self>,
         scales: FloatTensor<Self>,
@@ -104,6 +121,44 @@ pub trait GaussianOps: Backend {
         FloatTensor<Self>,
         FloatTensor<Self>,
     );
+}
+
+/// Output shapes of the ops, known from the inputs' shapes and the host arguments (Burn's
+/// `Fusion` backend queues the ops lazily and needs them before they run).
+mod fusion_shapes {
+    use super::*;
+    use burn::tensor::Shape;
+
+    /// `[V, K, width]` of the backend's prepared records (the widths of [`crate::cube`], which
+    /// `Fusion` wraps).
+    #[allow(dead_code)]
+    pub fn prepared(means: &Shape, cameras: &[Camera], options: &ProjectOptions) -> Shape {
+        #[cfg(feature = "wgpu")]
+        let width = match options.mode {
+            crate::options::ProjectionMode::Exact => crate::cube::math::EX_WIDTH,
+            crate::options::ProjectionMode::Affine => crate::cpu::PREPARED_WIDTH,
+        };
+        #[cfg(not(feature = "wgpu"))]
+        let width = {
+            let _ = options;
+            crate::cpu::PREPARED_WIDTH
+        };
+        Shape::from(vec![cameras.len(), means[0], width])
+    }
+
+    /// `[V, M, rows, cols]`.
+    #[allow(dead_code)]
+    pub fn images(densities: &Shape, cameras: &[Camera]) -> Shape {
+        let (rows, cols) = cameras.first().map_or((0, 0), |c| (c.rows, c.cols));
+        Shape::from(vec![cameras.len(), densities[1], rows, cols])
+    }
+
+    /// `[M, nz, ny, nx]`.
+    #[allow(dead_code)]
+    pub fn volumes(densities: &Shape, grid: &VoxelGrid) -> Shape {
+        let [nx, ny, nz] = grid.dims;
+        Shape::from(vec![densities[1], nz, ny, nx])
+    }
 }
 
 /// The Gaussian parameters as Burn tensors (see the module docs for layouts).
