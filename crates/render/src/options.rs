@@ -2,8 +2,9 @@
 
 use crate::error::{RenderError, Result};
 
-/// How each pixel's line integral of a Gaussian is computed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+/// How each pixel's line integral of a Gaussian is computed (YAML/JSON `affine` | `exact`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum ProjectionMode {
     /// Local-affine (EWA) splatting: one 2D Gaussian per view with the exact central-ray integral
     /// `μ = √(2π / r̂ᵀΣ⁻¹r̂)` as its weight. Exact for parallel beam; for cone beam the lateral

@@ -299,7 +299,8 @@ pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkp
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gaussian::config::{ProjectionConfig, ProjectionKind};
+    use crate::gaussian::config::ProjectionConfig;
+    use prism_render::ProjectionMode;
 
     #[test]
     fn settings_a_checkpoint_predates_count_as_their_defaults() {
@@ -314,7 +315,7 @@ mod tests {
         );
         let mut exact = config.clone();
         exact.projection = ProjectionConfig {
-            mode: ProjectionKind::Exact,
+            mode: ProjectionMode::Exact,
             ..ProjectionConfig::default()
         };
         let why = old

@@ -102,24 +102,13 @@ pub struct GaussianConfig {
     pub device: DeviceChoice,
 }
 
-/// How a Gaussian's line integral is computed per pixel (YAML `projection:`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ProjectionKind {
-    /// R²-Gaussian's local-affine splat (exact for parallel beam; for cone beam the lateral
-    /// profile is approximated to first order around the centre ray).
-    #[default]
-    Affine,
-    /// The closed-form integral of the 3D Gaussian along every pixel's ray (no cone-beam
-    /// approximation; on the CPU about 16× the cost of `affine`).
-    Exact,
-}
-
 /// Projection settings of training and of queries (YAML `projection:`; every field optional).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ProjectionConfig {
-    pub mode: ProjectionKind,
+    /// `affine` (R²-Gaussian's splat; a first-order approximation in cone beam) or `exact` (the
+    /// closed-form integral along every pixel's ray; on the CPU about 16× the cost).
+    pub mode: ProjectionMode,
     /// A pixel receives a Gaussian only if its ray passes within `cutoff` standard deviations of
     /// the centre (upstream 3: the dropped tail is e^{−cutoff²/2} = 1.1 % of the peak).
     pub cutoff: f64,
@@ -129,7 +118,7 @@ impl Default for ProjectionConfig {
     fn default() -> Self {
         let o = ProjectOptions::default();
         ProjectionConfig {
-            mode: ProjectionKind::Affine,
+            mode: o.mode,
             cutoff: o.cutoff,
         }
     }
@@ -139,10 +128,7 @@ impl ProjectionConfig {
     /// The render op's options.
     pub fn options(&self) -> ProjectOptions {
         ProjectOptions {
-            mode: match self.mode {
-                ProjectionKind::Affine => ProjectionMode::Affine,
-                ProjectionKind::Exact => ProjectionMode::Exact,
-            },
+            mode: self.mode,
             cutoff: self.cutoff,
             ..ProjectOptions::default()
         }

@@ -175,7 +175,7 @@ fn initial_scales_are_the_lattice_spacing_and_models_round_trip() {
         coordinate_range: [70.0, 70.0],
         geometry: g.clone(),
         projection: super::config::ProjectionConfig {
-            mode: super::config::ProjectionKind::Exact,
+            mode: prism_render::ProjectionMode::Exact,
             cutoff: 2.5,
         },
     };
@@ -443,8 +443,9 @@ fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
 
 #[test]
 fn the_projection_mode_reaches_training_and_queries() {
-    use super::config::{ProjectionConfig, ProjectionKind};
+    use super::config::ProjectionConfig;
     use super::query::{Query, QueryAt, render_views};
+    use prism_render::ProjectionMode;
     let scene = scene();
     let dev = test_device();
     let mut cfg = tiny(GaussianMethod::Stage1);
@@ -453,7 +454,7 @@ fn the_projection_mode_reaches_training_and_queries() {
     let affine_dir = tempfile::tempdir().unwrap();
     run::run(&cfg, &scene, affine_dir.path(), &dev).unwrap();
     cfg.projection = ProjectionConfig {
-        mode: ProjectionKind::Exact,
+        mode: ProjectionMode::Exact,
         cutoff: 3.0,
     };
     let dir = tempfile::tempdir().unwrap();
