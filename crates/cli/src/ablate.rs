@@ -1,12 +1,14 @@
 //! `prism ablate <freeze|curve-model> <config.yaml> -s <scene_dir> -o <out_dir>`: 4D-SG stage-2
-//! ablations from one shared stage 1 (see `prism_core::gaussian::ablation`).
+//! ablations from one shared stage 1 (see `prism_recon::pipeline::ablation`).
 
-use crate::recon::DeviceArg;
+use crate::progress::Bars;
+use crate::recon::{DeviceArg, OutArgs};
 use anyhow::bail;
-use prism_core::gaussian::GaussianMethod;
-use prism_core::gaussian::ablation::{Study, ablate, markdown};
-use prism_core::method::MethodConfig;
-use prism_core::scene::Scene;
+use prism_domain::scene::Scene;
+use prism_recon::MethodConfig;
+use prism_recon::gaussian::GaussianMethod;
+use prism_recon::pipeline::RunOptions;
+use prism_recon::pipeline::ablation::{Study, ablate, markdown};
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -27,10 +29,10 @@ pub struct Args {
     /// Scene directory (scene.yaml + .npy arrays).
     #[arg(short = 's', long = "scene")]
     scene: PathBuf,
-    /// Output directory: `geometry/` (the shared stage 1 and its checkpoint), one run directory per variant,
-    /// `ablation.json` and `ablation.md`.
-    #[arg(short = 'o', long = "out")]
-    out: PathBuf,
+    // Output (`-o`): `geometry/` (the shared stage 1 and its checkpoint), one run directory per
+    // variant, `ablation.json` and `ablation.md`.
+    #[command(flatten)]
+    out: OutArgs,
     /// Compute device (overrides the config's `device`): `cpu`, or `wgpu` in a prism built with
     /// `--features wgpu`.
     #[arg(long = "device")]
@@ -58,16 +60,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(d) = args.device {
         config.device = d.choice();
     }
-    let device = config.device.device()?;
-    let report = ablate(
-        &config,
-        study,
-        &scene,
-        &args.out,
-        &device,
-        args.from_geometry.as_deref(),
-    )?;
+    let bars = Bars::new();
+    let options = RunOptions {
+        device: config.device.device()?,
+        from_geometry: args.from_geometry.as_deref(),
+        observer: &bars,
+    };
+    let (dir, report) = ablate(&config, study, &scene, args.out.run_dir()?, &options)?;
+    bars.finish();
     print!("{}", markdown(&report));
-    eprintln!("→ {}", args.out.join("ablation.json").display());
+    eprintln!("→ {}", dir.join("ablation.json").display());
     Ok(())
 }

@@ -2,7 +2,8 @@
 //! stdout. RTK runs through `$PRISM_PYTHON` (default `python3`) when `itk-rtk` is importable and
 //! is skipped with a message otherwise.
 
-use prism_core::classic::bench::{BenchOptions, ordering, run as run_classic};
+use crate::progress::Bars;
+use prism_recon::classic::bench::{BenchOptions, ordering, run as run_classic};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -43,8 +44,9 @@ struct ClassicArgs {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let Which::Classic(a) = args.which;
+    let bars = Bars::new();
     let value = if a.ordering_only {
-        ordering()?
+        ordering(&bars)?
     } else {
         let mut opts = BenchOptions::default();
         if a.quick {
@@ -80,8 +82,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if let Some(n) = a.repeats {
             opts.repeats = n.max(1);
         }
-        run_classic(&opts)?
+        run_classic(&opts, &bars)?
     };
+    bars.finish();
     println!("{}", serde_json::to_string_pretty(&value)?);
     Ok(())
 }

@@ -1,6 +1,6 @@
 //! `prism info <scene_dir>`.
 
-use prism_core::scene::Scene;
+use prism_domain::scene::Scene;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]

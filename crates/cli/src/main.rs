@@ -1,11 +1,12 @@
 //! `prism`: simulate, inspect and reconstruct sparse-view spectral CT scenes.
 //!
-//! Each subcommand lives in its own module and only parses arguments, reports progress and calls
-//! `prism-core`; no algorithm lives here.
+//! Each subcommand lives in its own module and only parses arguments, shows progress
+//! ([`progress::Bars`]) and calls `prism-domain` or `prism-recon`; no algorithm lives here.
 
 mod ablate;
 mod bench;
 mod info;
+mod progress;
 mod query;
 mod recon;
 mod report;
@@ -52,7 +53,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Simulate(args) => simulate::run(args),
         Command::Info(args) => info::run(args),
-        Command::Recon(args) => recon::run(args),
+        Command::Recon(args) => recon::run_cmd(args),
         Command::Query(args) => query::run(args),
         Command::Report(args) => report::run(args),
         Command::Ablate(args) => ablate::run(args),

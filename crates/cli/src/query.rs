@@ -2,8 +2,9 @@
 //! (or the projections at every view of the run's geometry) of a trained spectral model
 //! (`4dsg`, `4dsg-stage1`) at any point of the spectral axis, without further optimisation.
 
-use prism_core::gaussian::cpu_device;
-use prism_core::gaussian::query::{Query, QueryAt};
+use prism_recon::gaussian::cpu_device;
+use prism_recon::pipeline::RunDir;
+use prism_recon::query::{Query, QueryAt};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -29,7 +30,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let q = Query::open(&args.run_dir, &cpu_device())?;
+    let q = Query::open(&RunDir::spectral_model(&args.run_dir)?, &cpu_device())?;
     let at = match (args.coordinate, args.tau) {
         (Some(c), _) => QueryAt::Coordinate(c),
         (None, Some(t)) => QueryAt::Tau(t),

@@ -1,26 +1,23 @@
 //! `prism recon <config.yaml> -s <scene_dir> -o <run_dir>`: reconstruct every channel of a scene
-//! with a classic method (`fdk | sart | cgls`, see `prism_core::classic::recon`) or a Gaussian
-//! one (`r2gs | 4dsg-stage1 | 4dsg`, see `prism_core::gaussian::run`; `--from-geometry`
-//! continues a 4D-SG run from its stage-1 checkpoint).
+//! with any method (`configs/recon/`), through `prism_recon::pipeline::run`.
 
-use prism_core::classic::recon::METRICS_FILE;
-use prism_core::gaussian::DeviceChoice;
-use prism_core::method::MethodConfig;
-use prism_core::scene::Scene;
+use crate::progress::Bars;
+use prism_domain::scene::Scene;
+use prism_recon::MethodConfig;
+use prism_recon::gaussian::DeviceChoice;
+use prism_recon::pipeline::{RunDir, RunOptions, run};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct ReconArgs {
-    /// Reconstruction config (YAML) with `method: fdk | sart | cgls | r2gs | 4dsg-stage1` and that
-    /// method's settings (see configs/recon/).
+    /// Reconstruction config (YAML) with `method: fdk | sart | cgls | r2gs | 4dsg-stage1 | 4dsg`
+    /// and that method's settings (see configs/recon/).
     config: PathBuf,
     /// Scene directory (scene.yaml + .npy arrays).
     #[arg(short = 's', long = "scene")]
     scene: PathBuf,
-    /// Run directory for `<label>.npy` volumes, `config.resolved.yaml` and `metrics.json`
-    /// (Gaussian methods add `log.jsonl`, `train.json` and the trained Gaussians).
-    #[arg(short = 'o', long = "out")]
-    out: PathBuf,
+    #[command(flatten)]
+    out: OutArgs,
     /// Compute device of a Gaussian method (overrides the config's `device`): `cpu`, or `wgpu`
     /// in a prism built with `--features wgpu` (a GPU, or Mesa's lavapipe without one).
     #[arg(long = "device")]
@@ -30,6 +27,25 @@ pub struct ReconArgs {
     /// same scene and stage-1 settings; the result is that of an uninterrupted run.
     #[arg(long = "from-geometry", value_name = "RUN_DIR|FILE")]
     from_geometry: Option<PathBuf>,
+}
+
+/// Where a run is published.
+#[derive(clap::Args)]
+pub struct OutArgs {
+    /// Output directory (a run: `<label>.npy` volumes, `config.resolved.yaml`, `metrics.json`,
+    /// …), written beside it and published when the command succeeds.
+    #[arg(short = 'o', long = "out")]
+    pub out: PathBuf,
+    /// Replace the run files of a directory that is not empty (files an earlier run did not
+    /// write are kept).
+    #[arg(long)]
+    pub force: bool,
+}
+
+impl OutArgs {
+    pub fn run_dir(&self) -> anyhow::Result<RunDir> {
+        Ok(RunDir::create(&self.out, self.force)?)
+    }
 }
 
 /// `--device` of the Gaussian methods.
@@ -48,28 +64,22 @@ impl DeviceArg {
     }
 }
 
-pub fn run(args: ReconArgs) -> anyhow::Result<()> {
+pub fn run_cmd(args: ReconArgs) -> anyhow::Result<()> {
     let mut config = MethodConfig::load(&args.config)?;
-    if let (MethodConfig::Gaussian(c), Some(d)) = (&mut config, args.device) {
-        c.device = d.choice();
+    if let Some(d) = args.device {
+        config.set_device(d.choice());
     }
-    let device = match &config {
-        MethodConfig::Gaussian(c) => c.device.device()?,
-        MethodConfig::Classic(_) => DeviceChoice::Cpu.device()?,
-    };
     let scene = Scene::load(&args.scene)?;
-    let report = match (&config, &args.from_geometry) {
-        (MethodConfig::Gaussian(c), Some(from)) => {
-            prism_core::gaussian::run::run_from(c, &scene, &args.out, &device, Some(from))?
-        }
-        (MethodConfig::Classic(_), Some(_)) => {
-            anyhow::bail!(
-                "--from-geometry applies to the Gaussian methods `4dsg` and `4dsg-stage1`"
-            )
-        }
-        _ => config.run(&scene, &args.out, &device)?,
+    let bars = Bars::new();
+    let options = RunOptions {
+        device: config.device().device()?,
+        from_geometry: args.from_geometry.as_deref(),
+        observer: &bars,
     };
-    match report {
+    options.check(&config)?;
+    let outcome = run(&config, &scene, args.out.run_dir()?, &options)?;
+    bars.finish();
+    match outcome.metrics {
         Some(report) => {
             for c in &report.channels {
                 eprintln!(
@@ -83,12 +93,12 @@ pub fn run(args: ReconArgs) -> anyhow::Result<()> {
                 report.mean.psnr,
                 report.mean.ssim,
                 report.wall_s,
-                args.out.join(METRICS_FILE).display()
+                outcome.dir.join(RunDir::METRICS).display()
             );
         }
         None => eprintln!(
             "the scene has no reference volumes; volumes written to {}",
-            args.out.display()
+            outcome.dir.display()
         ),
     }
     Ok(())

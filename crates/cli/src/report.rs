@@ -1,7 +1,7 @@
 //! `prism report <run_dir>...`: one per-channel PSNR/SSIM table over finished runs (see
-//! `prism_core::report`), with the paths of the written volumes.
+//! `prism_recon::report`), with the paths of the written volumes.
 
-use prism_core::report::{RunScores, table};
+use prism_recon::report::{RunScores, table};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]

@@ -1,8 +1,9 @@
 //! `prism simulate <config.yaml> -o <scene_dir>`.
 
+use crate::progress::Bars;
 use anyhow::Context;
-use indicatif::{ProgressBar, ProgressStyle};
-use prism_core::simulate::{SimulateConfig, simulate};
+use prism_domain::observe::Observer;
+use prism_domain::simulate::{SimulateConfig, simulate};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -10,7 +11,8 @@ use std::time::Instant;
 pub struct Args {
     /// Scene config (YAML), e.g. configs/phantom-3mono.yaml.
     config: PathBuf,
-    /// Output scene directory (replaced atomically if it exists).
+    /// Output scene directory (written beside it and published when done; an existing scene's
+    /// files are replaced, other files in the directory are kept).
     #[arg(short, long)]
     output: PathBuf,
     /// Use the paper's resolution (256³ volume, 512² detector), keeping every physical size.
@@ -24,17 +26,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         config = config.at_paper_scale();
     }
     let start = Instant::now();
-    let bar = ProgressBar::with_draw_target(None, prism_core::progress::target()).with_style(
-        ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}")
-            .expect("static template"),
-    );
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
-    let scene = simulate(&config, Some(&args.config), &bar)?;
-    bar.set_message(format!("writing {}", args.output.display()));
+    let bars = Bars::new();
+    let scene = simulate(&config, Some(&args.config), &bars)?;
+    bars.phase(&format!("writing {}", args.output.display()), 0);
     scene
         .save(&args.output)
         .with_context(|| format!("writing scene {}", args.output.display()))?;
-    bar.finish_and_clear();
+    bars.finish();
     println!(
         "wrote {} ({} channels, {} views, {:.1} s)",
         args.output.display(),

@@ -1,17 +1,14 @@
-//! Autodiff registration of [`SpectralOps`]: the forward ops save their (inner-backend) inputs,
-//! the backward step calls the backend's `*_backward` op once and registers the gradient of
-//! every tracked input. The backward ops are not themselves differentiated.
+//! Autodiff registration of [`SpectralOps`]: the hand-written backward kernels as Burn
+//! `Backward` steps (the pattern is [`prism_kernel::autodiff`]'s).
 
-use burn::backend::{
-    AutodiffBackend,
-    autodiff::{
-        Autodiff,
-        checkpoint::{base::Checkpointer, strategy::CheckpointStrategy},
-        grads::Gradients,
-        ops::{Backward, Ops, OpsKind},
-    },
-    tensor::FloatTensor,
+use burn::backend::autodiff::{
+    Autodiff,
+    checkpoint::{base::Checkpointer, strategy::CheckpointStrategy},
+    grads::Gradients,
+    ops::{Backward, Ops},
 };
+use burn::backend::tensor::FloatTensor;
+use prism_kernel::autodiff::{backpropagate, inner, lift, record};
 
 use crate::ops::SpectralOps;
 
@@ -22,15 +19,15 @@ impl<B: SpectralOps> Backward<B, 6> for ScanBackward {
     type State = ([FloatTensor<B>; 6], bool);
 
     fn backward(self, ops: Ops<Self::State, 6>, grads: &mut Gradients, _ck: &mut Checkpointer) {
-        let grad = grads.consume::<B>(&ops.node);
-        let ([x, delta, a_log, b, c, d], softplus) = ops.state;
-        let (g0, g1, g2, g3, g4, g5) =
-            B::selective_scan_backward(x, delta, a_log, b, c, d, softplus, grad);
-        for (parent, g) in ops.parents.into_iter().zip([g0, g1, g2, g3, g4, g5]) {
-            if let Some(node) = parent {
-                grads.register::<B>(node.id, g);
-            }
-        }
+        backpropagate::<B, _, 6>(
+            ops,
+            grads,
+            |([x, delta, a_log, b, c, d], softplus), grad| {
+                let (g0, g1, g2, g3, g4, g5) =
+                    B::selective_scan_backward(x, delta, a_log, b, c, d, softplus, grad);
+                [g0, g1, g2, g3, g4, g5]
+            },
+        );
     }
 }
 
@@ -41,14 +38,10 @@ impl<B: SpectralOps> Backward<B, 3> for ConvBackward {
     type State = [FloatTensor<B>; 3];
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _ck: &mut Checkpointer) {
-        let grad = grads.consume::<B>(&ops.node);
-        let [u, w, bias] = ops.state;
-        let (g0, g1, g2) = B::spectral_conv_silu_backward(u, w, bias, grad);
-        for (parent, g) in ops.parents.into_iter().zip([g0, g1, g2]) {
-            if let Some(node) = parent {
-                grads.register::<B>(node.id, g);
-            }
-        }
+        backpropagate::<B, _, 3>(ops, grads, |[u, w, bias], grad| {
+            let (g0, g1, g2) = B::spectral_conv_silu_backward(u, w, bias, grad);
+            [g0, g1, g2]
+        });
     }
 }
 
@@ -62,36 +55,12 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         d: FloatTensor<Self>,
         softplus: bool,
     ) -> FloatTensor<Self> {
-        let prep = ScanBackward
-            .prepare::<C>([
-                x.node(),
-                delta.node(),
-                a_log.node(),
-                b.node(),
-                c.node(),
-                d.node(),
-            ])
-            .compute_bound()
-            .stateful();
-        let inputs = [
-            x.into_primitive(),
-            delta.into_primitive(),
-            a_log.into_primitive(),
-            b.into_primitive(),
-            c.into_primitive(),
-            d.into_primitive(),
-        ];
-        match prep {
-            OpsKind::Tracked(prep) => {
-                let [x, delta, a_log, b, c, d] = inputs.clone();
-                let out = B::selective_scan(x, delta, a_log, b, c, d, softplus);
-                prep.finish((inputs, softplus), out)
-            }
-            OpsKind::UnTracked(prep) => {
-                let [x, delta, a_log, b, c, d] = inputs;
-                prep.finish(B::selective_scan(x, delta, a_log, b, c, d, softplus))
-            }
-        }
+        record::<B, C, _, _, 6>(
+            ScanBackward,
+            [x, delta, a_log, b, c, d],
+            |inputs| (inputs, softplus),
+            |[x, delta, a_log, b, c, d]| B::selective_scan(x, delta, a_log, b, c, d, softplus),
+        )
     }
 
     fn selective_scan_backward(
@@ -111,18 +80,11 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         FloatTensor<Self>,
         FloatTensor<Self>,
     ) {
-        let (g0, g1, g2, g3, g4, g5) = B::selective_scan_backward(
-            x.into_primitive(),
-            delta.into_primitive(),
-            a_log.into_primitive(),
-            b.into_primitive(),
-            c.into_primitive(),
-            d.into_primitive(),
-            softplus,
-            grad.into_primitive(),
-        );
-        let lift = <Self as AutodiffBackend>::from_inner;
-        (lift(g0), lift(g1), lift(g2), lift(g3), lift(g4), lift(g5))
+        let [x, delta, a_log, b, c, d, grad] = inner([x, delta, a_log, b, c, d, grad]);
+        let (g0, g1, g2, g3, g4, g5) =
+            B::selective_scan_backward(x, delta, a_log, b, c, d, softplus, grad);
+        let [g0, g1, g2, g3, g4, g5] = lift([g0, g1, g2, g3, g4, g5]);
+        (g0, g1, g2, g3, g4, g5)
     }
 
     fn spectral_conv_silu(
@@ -130,26 +92,12 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         w: FloatTensor<Self>,
         bias: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
-        let prep = ConvBackward
-            .prepare::<C>([u.node(), w.node(), bias.node()])
-            .compute_bound()
-            .stateful();
-        let inputs = [
-            u.into_primitive(),
-            w.into_primitive(),
-            bias.into_primitive(),
-        ];
-        match prep {
-            OpsKind::Tracked(prep) => {
-                let [u, w, bias] = inputs.clone();
-                let out = B::spectral_conv_silu(u, w, bias);
-                prep.finish(inputs, out)
-            }
-            OpsKind::UnTracked(prep) => {
-                let [u, w, bias] = inputs;
-                prep.finish(B::spectral_conv_silu(u, w, bias))
-            }
-        }
+        record::<B, C, _, _, 3>(
+            ConvBackward,
+            [u, w, bias],
+            |inputs| inputs,
+            |[u, w, bias]| B::spectral_conv_silu(u, w, bias),
+        )
     }
 
     fn spectral_conv_silu_backward(
@@ -158,13 +106,9 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         bias: FloatTensor<Self>,
         grad: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
-        let (g0, g1, g2) = B::spectral_conv_silu_backward(
-            u.into_primitive(),
-            w.into_primitive(),
-            bias.into_primitive(),
-            grad.into_primitive(),
-        );
-        let lift = <Self as AutodiffBackend>::from_inner;
-        (lift(g0), lift(g1), lift(g2))
+        let [u, w, bias, grad] = inner([u, w, bias, grad]);
+        let (g0, g1, g2) = B::spectral_conv_silu_backward(u, w, bias, grad);
+        let [g0, g1, g2] = lift([g0, g1, g2]);
+        (g0, g1, g2)
     }
 }

@@ -1,21 +1,18 @@
-//! Autodiff registration: the hand-written backward kernels as Burn `Backward` steps.
+//! Autodiff registration: the hand-written backward kernels as Burn `Backward` steps (the
+//! pattern is [`prism_kernel::autodiff`]'s).
 //!
-//! The forward ops save their (inner-backend) inputs; the backward step calls the backend's
-//! `*_backward` op once and registers the gradient of every tracked input. The projection also
-//! saves its prepared state (see [`GaussianOps::gaussian_project_prepare`]), so the backward
-//! reuses the forward's per-Gaussian preparation. The backward ops themselves are not
-//! differentiated (no double backward), nor is the prepared state.
+//! The projection also saves its prepared state (see
+//! [`GaussianOps::gaussian_project_prepare`]), so the backward reuses the forward's per-Gaussian
+//! preparation. The prepared state is not differentiated.
 
-use burn::backend::{
-    AutodiffBackend,
-    autodiff::{
-        Autodiff,
-        checkpoint::{base::Checkpointer, strategy::CheckpointStrategy},
-        grads::Gradients,
-        ops::{Backward, Ops, OpsKind},
-    },
-    tensor::FloatTensor,
+use burn::backend::autodiff::{
+    Autodiff,
+    checkpoint::{base::Checkpointer, strategy::CheckpointStrategy},
+    grads::Gradients,
+    ops::{Backward, Ops},
 };
+use burn::backend::tensor::FloatTensor;
+use prism_kernel::autodiff::{backpropagate, inner, lift, record};
 
 use crate::camera::Camera;
 use crate::ops::GaussianOps;
@@ -36,16 +33,13 @@ impl<B: GaussianOps> Backward<B, 5> for ProjectBackward {
     type State = ProjectState<B>;
 
     fn backward(self, ops: Ops<Self::State, 5>, grads: &mut Gradients, _ck: &mut Checkpointer) {
-        let grad = grads.consume::<B>(&ops.node);
-        let ([means, scales, rotations, densities, screen], prepared, cameras, options) = ops.state;
-        let (g0, g1, g2, g3, g4) = B::gaussian_project_backward(
-            means, scales, rotations, densities, screen, prepared, cameras, options, grad,
-        );
-        for (parent, g) in ops.parents.into_iter().zip([g0, g1, g2, g3, g4]) {
-            if let Some(node) = parent {
-                grads.register::<B>(node.id, g);
-            }
-        }
+        backpropagate::<B, _, 5>(ops, grads, |(x, prepared, cameras, options), grad| {
+            let [means, scales, rotations, densities, screen] = x;
+            let (a, b, c, d, e) = B::gaussian_project_backward(
+                means, scales, rotations, densities, screen, prepared, cameras, options, grad,
+            );
+            [a, b, c, d, e]
+        });
     }
 }
 
@@ -56,15 +50,13 @@ impl<B: GaussianOps> Backward<B, 4> for VoxelizeBackward {
     type State = ([FloatTensor<B>; 4], VoxelGrid, VoxelizeOptions);
 
     fn backward(self, ops: Ops<Self::State, 4>, grads: &mut Gradients, _ck: &mut Checkpointer) {
-        let grad = grads.consume::<B>(&ops.node);
-        let ([means, scales, rotations, densities], grid, options) = ops.state;
-        let (g0, g1, g2, g3) =
-            B::gaussian_voxelize_backward(means, scales, rotations, densities, grid, options, grad);
-        for (parent, g) in ops.parents.into_iter().zip([g0, g1, g2, g3]) {
-            if let Some(node) = parent {
-                grads.register::<B>(node.id, g);
-            }
-        }
+        backpropagate::<B, _, 4>(ops, grads, |(x, grid, options), grad| {
+            let [means, scales, rotations, densities] = x;
+            let (a, b, c, d) = B::gaussian_voxelize_backward(
+                means, scales, rotations, densities, grid, options, grad,
+            );
+            [a, b, c, d]
+        });
     }
 }
 
@@ -78,16 +70,13 @@ impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
         cameras: Vec<Camera>,
         options: ProjectOptions,
     ) -> FloatTensor<Self> {
+        let [means, scales, rotations, densities, screen] =
+            inner([means, scales, rotations, densities, screen]);
         let prepared = B::gaussian_project_prepare(
-            means.into_primitive(),
-            scales.into_primitive(),
-            rotations.into_primitive(),
-            densities.into_primitive(),
-            screen.into_primitive(),
-            cameras,
-            options,
+            means, scales, rotations, densities, screen, cameras, options,
         );
-        <Self as AutodiffBackend>::from_inner(prepared)
+        let [prepared] = lift([prepared]);
+        prepared
     }
 
     fn gaussian_project(
@@ -100,38 +89,14 @@ impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
         cameras: Vec<Camera>,
         options: ProjectOptions,
     ) -> FloatTensor<Self> {
-        let prep = ProjectBackward
-            .prepare::<C>([
-                means.node(),
-                scales.node(),
-                rotations.node(),
-                densities.node(),
-                screen.node(),
-            ])
-            .compute_bound()
-            .stateful();
-        let inputs = [
-            means.into_primitive(),
-            scales.into_primitive(),
-            rotations.into_primitive(),
-            densities.into_primitive(),
-            screen.into_primitive(),
-        ];
         let prepared = prepared.into_primitive();
-        match prep {
-            OpsKind::Tracked(prep) => {
-                let [a, b, c, d, e] = inputs.clone();
-                let out =
-                    B::gaussian_project(a, b, c, d, e, prepared.clone(), cameras.clone(), options);
-                prep.finish((inputs, prepared, cameras, options), out)
-            }
-            OpsKind::UnTracked(prep) => {
-                let [a, b, c, d, e] = inputs;
-                prep.finish(B::gaussian_project(
-                    a, b, c, d, e, prepared, cameras, options,
-                ))
-            }
-        }
+        let saved = (prepared.clone(), cameras.clone(), options);
+        record::<B, C, _, _, 5>(
+            ProjectBackward,
+            [means, scales, rotations, densities, screen],
+            move |x| (x, saved.0, saved.1, saved.2),
+            |[a, b, c, d, e]| B::gaussian_project(a, b, c, d, e, prepared, cameras, options),
+        )
     }
 
     fn gaussian_project_backward(
@@ -151,19 +116,13 @@ impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
         FloatTensor<Self>,
         FloatTensor<Self>,
     ) {
+        let [means, scales, rotations, densities, screen, prepared, grad] =
+            inner([means, scales, rotations, densities, screen, prepared, grad]);
         let (a, b, c, d, e) = B::gaussian_project_backward(
-            means.into_primitive(),
-            scales.into_primitive(),
-            rotations.into_primitive(),
-            densities.into_primitive(),
-            screen.into_primitive(),
-            prepared.into_primitive(),
-            cameras,
-            options,
-            grad.into_primitive(),
+            means, scales, rotations, densities, screen, prepared, cameras, options, grad,
         );
-        let lift = <Self as AutodiffBackend>::from_inner;
-        (lift(a), lift(b), lift(c), lift(d), lift(e))
+        let [a, b, c, d, e] = lift([a, b, c, d, e]);
+        (a, b, c, d, e)
     }
 
     fn gaussian_voxelize(
@@ -174,32 +133,12 @@ impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
         grid: VoxelGrid,
         options: VoxelizeOptions,
     ) -> FloatTensor<Self> {
-        let prep = VoxelizeBackward
-            .prepare::<C>([
-                means.node(),
-                scales.node(),
-                rotations.node(),
-                densities.node(),
-            ])
-            .compute_bound()
-            .stateful();
-        let inputs = [
-            means.into_primitive(),
-            scales.into_primitive(),
-            rotations.into_primitive(),
-            densities.into_primitive(),
-        ];
-        match prep {
-            OpsKind::Tracked(prep) => {
-                let [a, b, c, d] = inputs.clone();
-                let out = B::gaussian_voxelize(a, b, c, d, grid, options);
-                prep.finish((inputs, grid, options), out)
-            }
-            OpsKind::UnTracked(prep) => {
-                let [a, b, c, d] = inputs;
-                prep.finish(B::gaussian_voxelize(a, b, c, d, grid, options))
-            }
-        }
+        record::<B, C, _, _, 4>(
+            VoxelizeBackward,
+            [means, scales, rotations, densities],
+            |x| (x, grid, options),
+            |[a, b, c, d]| B::gaussian_voxelize(a, b, c, d, grid, options),
+        )
     }
 
     fn gaussian_voxelize_backward(
@@ -216,16 +155,11 @@ impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
         FloatTensor<Self>,
         FloatTensor<Self>,
     ) {
-        let (a, b, c, d) = B::gaussian_voxelize_backward(
-            means.into_primitive(),
-            scales.into_primitive(),
-            rotations.into_primitive(),
-            densities.into_primitive(),
-            grid,
-            options,
-            grad.into_primitive(),
-        );
-        let lift = <Self as AutodiffBackend>::from_inner;
-        (lift(a), lift(b), lift(c), lift(d))
+        let [means, scales, rotations, densities, grad] =
+            inner([means, scales, rotations, densities, grad]);
+        let (a, b, c, d) =
+            B::gaussian_voxelize_backward(means, scales, rotations, densities, grid, options, grad);
+        let [a, b, c, d] = lift([a, b, c, d]);
+        (a, b, c, d)
     }
 }

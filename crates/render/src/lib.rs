@@ -12,8 +12,14 @@
 //!   [`cpu`]: the rayon tile kernels used by the NdArray and Flex backends; `cube` (feature
 //!   `wgpu`): the CubeCL kernels of the wgpu backend.
 
-// Index loops mirror the matrix math (and the CubeCL kernels that will port it).
+// Index loops mirror the matrix math (and the CubeCL kernels that port it).
 #![allow(clippy::needless_range_loop)]
+// Without a backend feature the crate serves its plain types only (the camera, the options, the
+// per-Gaussian math; `prism-domain` uses it so): the op registrations are then unused.
+#![cfg_attr(
+    not(any(feature = "flex", feature = "ndarray", feature = "wgpu")),
+    allow(unused)
+)]
 
 mod autodiff;
 mod backend;

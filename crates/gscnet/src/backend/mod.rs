@@ -1,57 +1,52 @@
-//! CPU backends: one kernel implementation ([`crate::cpu`]) registered for NdArray and Flex
-//! through thin adapters that borrow the primitives' buffers (no `TensorData` round trip).
+//! CPU backends: one kernel implementation ([`crate::cpu`]) registered for every CPU backend
+//! through [`CpuFloat`], which borrows the tensors' f32 buffers (no `TensorData` round trip).
 
-#[cfg(feature = "flex")]
-mod flex;
-#[cfg(feature = "ndarray")]
-mod ndarray;
+#[cfg(any(feature = "flex", feature = "ndarray"))]
+use prism_kernel::cpu::CpuFloat;
 
-/// Borrow the six scan inputs of a CPU backend as [`crate::cpu::scan::ScanInputs`] bound to
-/// `$s` while `$body` runs.
-#[allow(unused_macros)]
-macro_rules! with_scan_inputs {
-    ($read:path, $dims:path, $x:expr, $delta:expr, $a_log:expr, $b:expr, $c:expr, $d:expr,
-     $softplus:expr, |$s:ident| $body:expr) => {{
-        let (xd, ad) = ($dims($x), $dims($a_log));
-        let dims = $crate::cpu::scan::ScanDims {
-            k: xd[0],
-            m: xd[1],
-            e: xd[2],
-            n: ad[1],
-        };
-        $read($x, |x| {
-            $read($delta, |delta| {
-                $read($a_log, |a_log| {
-                    $read($b, |b| {
-                        $read($c, |c| {
-                            $read($d, |d| {
-                                let $s = $crate::cpu::scan::ScanInputs {
-                                    dims,
-                                    x,
-                                    delta,
-                                    a_log,
-                                    b,
-                                    c,
-                                    d,
-                                    softplus: $softplus,
-                                };
-                                $body
-                            })
-                        })
-                    })
-                })
-            })
+/// The six scan inputs of a CPU backend as [`crate::cpu::scan::ScanInputs`].
+#[cfg(any(feature = "flex", feature = "ndarray"))]
+fn with_scan_inputs<B: CpuFloat, R>(
+    inputs: [&burn::backend::tensor::FloatTensor<B>; 6],
+    softplus: bool,
+    f: impl FnOnce(&crate::cpu::scan::ScanInputs) -> R,
+) -> R {
+    let (xd, ad) = (B::dims(inputs[0]), B::dims(inputs[2]));
+    let dims = crate::cpu::scan::ScanDims {
+        k: xd[0],
+        m: xd[1],
+        e: xd[2],
+        n: ad[1],
+    };
+    B::with_values(inputs, |[x, delta, a_log, b, c, d]| {
+        f(&crate::cpu::scan::ScanInputs {
+            dims,
+            x,
+            delta,
+            a_log,
+            b,
+            c,
+            d,
+            softplus,
         })
-    }};
+    })
 }
-#[allow(unused_imports)]
-pub(crate) use with_scan_inputs;
 
-/// Implements [`crate::ops::SpectralOps`] for a CPU backend given `read(&tensor, |&[f32]| ..)`,
-/// `write(Vec<f32>, shape)` and `dims(&tensor) -> Vec<usize>`.
-#[allow(unused_macros)]
+/// The convolution's sizes from `u [K, M, E]` and `w [E, J]`.
+#[cfg(any(feature = "flex", feature = "ndarray"))]
+fn conv_dims(u: &[usize], w: &[usize]) -> crate::cpu::conv::ConvDims {
+    crate::cpu::conv::ConvDims {
+        k: u[0],
+        m: u[1],
+        e: u[2],
+        j: w[1],
+    }
+}
+
+/// Implements [`crate::ops::SpectralOps`] for a CPU backend (one that implements [`CpuFloat`]).
+#[cfg(any(feature = "flex", feature = "ndarray"))]
 macro_rules! impl_cpu_spectral_ops {
-    ($backend:ty, $read:path, $write:path, $dims:path) => {
+    ($backend:ty) => {
         impl $crate::ops::SpectralOps for $backend {
             fn selective_scan(
                 x: FloatTensor<Self>,
@@ -62,20 +57,12 @@ macro_rules! impl_cpu_spectral_ops {
                 d: FloatTensor<Self>,
                 softplus: bool,
             ) -> FloatTensor<Self> {
-                let shape = $dims(&x);
-                let y = $crate::backend::with_scan_inputs!(
-                    $read,
-                    $dims,
-                    &x,
-                    &delta,
-                    &a_log,
-                    &b,
-                    &c,
-                    &d,
+                let y = with_scan_inputs::<Self, _>(
+                    [&x, &delta, &a_log, &b, &c, &d],
                     softplus,
-                    |s| $crate::cpu::scan::scan_forward(&s)
+                    $crate::cpu::scan::scan_forward,
                 );
-                $write(y, shape)
+                Self::tensor(y, Self::dims(&x))
             }
 
             fn selective_scan_backward(
@@ -95,25 +82,18 @@ macro_rules! impl_cpu_spectral_ops {
                 FloatTensor<Self>,
                 FloatTensor<Self>,
             ) {
-                let g = $crate::backend::with_scan_inputs!(
-                    $read,
-                    $dims,
-                    &x,
-                    &delta,
-                    &a_log,
-                    &b,
-                    &c,
-                    &d,
-                    softplus,
-                    |s| $read(&grad, |grad| $crate::cpu::scan::scan_backward(&s, grad))
-                );
+                let gy = Self::values(&grad);
+                let g =
+                    with_scan_inputs::<Self, _>([&x, &delta, &a_log, &b, &c, &d], softplus, |s| {
+                        $crate::cpu::scan::scan_backward(s, &gy)
+                    });
                 (
-                    $write(g.x, $dims(&x)),
-                    $write(g.delta, $dims(&delta)),
-                    $write(g.a_log, $dims(&a_log)),
-                    $write(g.b, $dims(&b)),
-                    $write(g.c, $dims(&c)),
-                    $write(g.d, $dims(&d)),
+                    Self::tensor(g.x, Self::dims(&x)),
+                    Self::tensor(g.delta, Self::dims(&delta)),
+                    Self::tensor(g.a_log, Self::dims(&a_log)),
+                    Self::tensor(g.b, Self::dims(&b)),
+                    Self::tensor(g.c, Self::dims(&c)),
+                    Self::tensor(g.d, Self::dims(&d)),
                 )
             }
 
@@ -122,21 +102,12 @@ macro_rules! impl_cpu_spectral_ops {
                 w: FloatTensor<Self>,
                 bias: FloatTensor<Self>,
             ) -> FloatTensor<Self> {
-                let (shape, wd) = ($dims(&u), $dims(&w));
-                let dims = $crate::cpu::conv::ConvDims {
-                    k: shape[0],
-                    m: shape[1],
-                    e: shape[2],
-                    j: wd[1],
-                };
-                let y = $read(&u, |u| {
-                    $read(&w, |w| {
-                        $read(&bias, |bias| {
-                            $crate::cpu::conv::conv_silu_forward(dims, u, w, bias)
-                        })
-                    })
+                let shape = Self::dims(&u);
+                let dims = conv_dims(&shape, &Self::dims(&w));
+                let y = Self::with_values([&u, &w, &bias], |[u, w, bias]| {
+                    $crate::cpu::conv::conv_silu_forward(dims, u, w, bias)
                 });
-                $write(y, shape)
+                Self::tensor(y, shape)
             }
 
             fn spectral_conv_silu_backward(
@@ -145,30 +116,33 @@ macro_rules! impl_cpu_spectral_ops {
                 bias: FloatTensor<Self>,
                 grad: FloatTensor<Self>,
             ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
-                let (shape, wd) = ($dims(&u), $dims(&w));
-                let dims = $crate::cpu::conv::ConvDims {
-                    k: shape[0],
-                    m: shape[1],
-                    e: shape[2],
-                    j: wd[1],
-                };
-                let g = $read(&u, |u| {
-                    $read(&w, |w| {
-                        $read(&bias, |bias| {
-                            $read(&grad, |grad| {
-                                $crate::cpu::conv::conv_silu_backward(dims, u, w, bias, grad)
-                            })
-                        })
-                    })
+                let (shape, wd) = (Self::dims(&u), Self::dims(&w));
+                let dims = conv_dims(&shape, &wd);
+                let g = Self::with_values([&u, &w, &bias, &grad], |[u, w, bias, grad]| {
+                    $crate::cpu::conv::conv_silu_backward(dims, u, w, bias, grad)
                 });
                 (
-                    $write(g.u, shape),
-                    $write(g.w, wd),
-                    $write(g.bias, $dims(&bias)),
+                    Self::tensor(g.u, shape),
+                    Self::tensor(g.w, wd),
+                    Self::tensor(g.bias, Self::dims(&bias)),
                 )
             }
         }
     };
 }
-#[allow(unused_imports)]
-pub(crate) use impl_cpu_spectral_ops;
+
+#[cfg(feature = "flex")]
+mod flex {
+    use super::*;
+    use burn::backend::{Flex, tensor::FloatTensor};
+    impl_cpu_spectral_ops!(Flex);
+}
+
+// burn-ndarray is deprecated in Burn 0.22 (Flex is its successor); kept while it exists.
+#[cfg(feature = "ndarray")]
+#[allow(deprecated)]
+mod ndarray {
+    use super::*;
+    use burn::backend::{NdArray, tensor::FloatTensor};
+    impl_cpu_spectral_ops!(NdArray);
+}

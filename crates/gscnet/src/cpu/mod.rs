@@ -40,19 +40,7 @@ pub mod scan;
 /// Gaussians per rayon task: large enough to amortise scheduling, small enough to balance.
 pub(crate) const BLOCK: usize = 256;
 
-/// Whether the running CPU has AVX2 and FMA (checked once per process), so the kernels may take
-/// their `target_feature(enable = "avx2,fma")` variants.
-pub(crate) fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        *HAS.get_or_init(|| is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
+pub(crate) use prism_kernel::simd::has_avx2_fma as has_avx2;
 
 /// Element-wise sum of per-block partial gradients, in block order (deterministic).
 pub(crate) fn sum_partials(partials: Vec<Vec<f32>>, len: usize) -> Vec<f32> {

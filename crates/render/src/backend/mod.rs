@@ -1,40 +1,35 @@
-//! CPU backends: one kernel implementation ([`crate::cpu`]) registered for NdArray and Flex through
-//! thin adapters that borrow the primitives' buffers (no `TensorData` round trip on input).
+//! CPU backends: one kernel implementation ([`crate::cpu`]) registered for every CPU backend
+//! through [`CpuFloat`], which borrows the tensors' f32 buffers (no `TensorData` round trip on
+//! input, no copy of the outputs).
 
-#[cfg(feature = "flex")]
-mod flex;
-#[cfg(feature = "ndarray")]
-mod ndarray;
+#[cfg(any(feature = "flex", feature = "ndarray"))]
+use prism_kernel::cpu::CpuFloat;
 
-/// Borrow the four Gaussian parameter buffers of a CPU backend as [`crate::cpu::GaussianSlices`]
-/// bound to `$g` while `$body` runs.
-macro_rules! with_gaussians {
-    ($read:path, $means:expr, $scales:expr, $rotations:expr, $densities:expr, $channels:expr,
-     |$g:ident| $body:expr) => {
-        $read($means, |means| {
-            $read($scales, |scales| {
-                $read($rotations, |rotations| {
-                    $read($densities, |densities| {
-                        let $g = $crate::cpu::GaussianSlices {
-                            means,
-                            scales,
-                            rotations,
-                            densities,
-                            channels: $channels,
-                        };
-                        $body
-                    })
-                })
-            })
-        })
-    };
+/// The four Gaussian parameter buffers of a CPU backend as [`crate::cpu::GaussianSlices`].
+#[cfg(any(feature = "flex", feature = "ndarray"))]
+fn with_gaussians<B: CpuFloat, R>(
+    [means, scales, rotations, densities]: [&burn::backend::tensor::FloatTensor<B>; 4],
+    extra: &[&burn::backend::tensor::FloatTensor<B>],
+    f: impl FnOnce(&crate::cpu::GaussianSlices, &[&[f32]]) -> R,
+) -> R {
+    let channels = B::dims(densities)[1];
+    B::with_values([means, scales, rotations, densities], |[m, s, r, d]| {
+        let extra: Vec<_> = extra.iter().map(|t| B::values(t)).collect();
+        let extra: Vec<&[f32]> = extra.iter().map(|v| &**v).collect();
+        let g = crate::cpu::GaussianSlices {
+            means: m,
+            scales: s,
+            rotations: r,
+            densities: d,
+            channels,
+        };
+        f(&g, &extra)
+    })
 }
-pub(crate) use with_gaussians;
 
-/// Implements [`crate::GaussianOps`] for a CPU backend given `read(&tensor, |&[f32]| ..)`,
-/// `write(Vec<f32>, shape)` and `dims(&tensor) -> Vec<usize>`.
+/// Implements [`crate::GaussianOps`] for a CPU backend (one that implements [`CpuFloat`]).
 macro_rules! impl_cpu_gaussian_ops {
-    ($backend:ty, $read:path, $write:path, $dims:path) => {
+    ($backend:ty) => {
         impl $crate::ops::GaussianOps for $backend {
             fn gaussian_project_prepare(
                 means: FloatTensor<Self>,
@@ -45,20 +40,16 @@ macro_rules! impl_cpu_gaussian_ops {
                 cameras: Vec<$crate::Camera>,
                 options: $crate::ProjectOptions,
             ) -> FloatTensor<Self> {
-                let k = $dims(&means)[0];
-                let channels = $dims(&densities)[1];
-                let out = $crate::backend::with_gaussians!(
-                    $read,
-                    &means,
-                    &scales,
-                    &rotations,
-                    &densities,
-                    channels,
-                    |g| $read(&screen, |screen| {
-                        $crate::cpu::project_prepare(&g, screen, &cameras, &options)
-                    })
+                let k = Self::dims(&means)[0];
+                let out = with_gaussians::<Self, _>(
+                    [&means, &scales, &rotations, &densities],
+                    &[&screen],
+                    |g, x| $crate::cpu::project_prepare(g, x[0], &cameras, &options),
                 );
-                $write(out, vec![cameras.len(), k, $crate::cpu::PREPARED_WIDTH])
+                Self::tensor(
+                    out,
+                    vec![cameras.len(), k, $crate::cpu::prepared_width(options.mode)],
+                )
             }
 
             fn gaussian_project(
@@ -71,24 +62,14 @@ macro_rules! impl_cpu_gaussian_ops {
                 cameras: Vec<$crate::Camera>,
                 options: $crate::ProjectOptions,
             ) -> FloatTensor<Self> {
-                let channels = $dims(&densities)[1];
-                let out = $crate::backend::with_gaussians!(
-                    $read,
-                    &means,
-                    &scales,
-                    &rotations,
-                    &densities,
-                    channels,
-                    |g| $read(&screen, |screen| {
-                        $read(&prepared, |prepared| {
-                            $crate::cpu::project_forward_prepared(
-                                &g, screen, prepared, &cameras, &options,
-                            )
-                        })
-                    })
+                let channels = Self::dims(&densities)[1];
+                let out = with_gaussians::<Self, _>(
+                    [&means, &scales, &rotations, &densities],
+                    &[&screen, &prepared],
+                    |g, x| $crate::cpu::project_forward_prepared(g, x[0], x[1], &cameras, &options),
                 );
                 let (rows, cols) = cameras.first().map_or((0, 0), |c| (c.rows, c.cols));
-                $write(out, vec![cameras.len(), channels, rows, cols])
+                Self::tensor(out, vec![cameras.len(), channels, rows, cols])
             }
 
             fn gaussian_project_backward(
@@ -108,31 +89,23 @@ macro_rules! impl_cpu_gaussian_ops {
                 FloatTensor<Self>,
                 FloatTensor<Self>,
             ) {
-                let k = $dims(&means)[0];
-                let channels = $dims(&densities)[1];
-                let g = $crate::backend::with_gaussians!(
-                    $read,
-                    &means,
-                    &scales,
-                    &rotations,
-                    &densities,
-                    channels,
-                    |g| $read(&screen, |screen| {
-                        $read(&prepared, |prepared| {
-                            $read(&grad, |grad| {
-                                $crate::cpu::project_backward_prepared(
-                                    &g, screen, prepared, &cameras, &options, grad,
-                                )
-                            })
-                        })
-                    })
+                let k = Self::dims(&means)[0];
+                let channels = Self::dims(&densities)[1];
+                let g = with_gaussians::<Self, _>(
+                    [&means, &scales, &rotations, &densities],
+                    &[&screen, &prepared, &grad],
+                    |g, x| {
+                        $crate::cpu::project_backward_prepared(
+                            g, x[0], x[1], &cameras, &options, x[2],
+                        )
+                    },
                 );
                 (
-                    $write(g.means, vec![k, 3]),
-                    $write(g.scales, vec![k, 3]),
-                    $write(g.rotations, vec![k, 4]),
-                    $write(g.densities, vec![k, channels]),
-                    $write(g.screen, vec![cameras.len(), k, 2]),
+                    Self::tensor(g.means, vec![k, 3]),
+                    Self::tensor(g.scales, vec![k, 3]),
+                    Self::tensor(g.rotations, vec![k, 4]),
+                    Self::tensor(g.densities, vec![k, channels]),
+                    Self::tensor(g.screen, vec![cameras.len(), k, 2]),
                 )
             }
 
@@ -144,18 +117,14 @@ macro_rules! impl_cpu_gaussian_ops {
                 grid: $crate::VoxelGrid,
                 options: $crate::VoxelizeOptions,
             ) -> FloatTensor<Self> {
-                let channels = $dims(&densities)[1];
-                let out = $crate::backend::with_gaussians!(
-                    $read,
-                    &means,
-                    &scales,
-                    &rotations,
-                    &densities,
-                    channels,
-                    |g| $crate::cpu::voxelize_forward(&g, &grid, &options)
+                let channels = Self::dims(&densities)[1];
+                let out = with_gaussians::<Self, _>(
+                    [&means, &scales, &rotations, &densities],
+                    &[],
+                    |g, _| $crate::cpu::voxelize_forward(g, &grid, &options),
                 );
                 let [nx, ny, nz] = grid.dims;
-                $write(out, vec![channels, nz, ny, nx])
+                Self::tensor(out, vec![channels, nz, ny, nx])
             }
 
             fn gaussian_voxelize_backward(
@@ -172,27 +141,36 @@ macro_rules! impl_cpu_gaussian_ops {
                 FloatTensor<Self>,
                 FloatTensor<Self>,
             ) {
-                let k = $dims(&means)[0];
-                let channels = $dims(&densities)[1];
-                let g = $crate::backend::with_gaussians!(
-                    $read,
-                    &means,
-                    &scales,
-                    &rotations,
-                    &densities,
-                    channels,
-                    |g| $read(&grad, |grad| {
-                        $crate::cpu::voxelize_backward(&g, &grid, &options, grad)
-                    })
+                let k = Self::dims(&means)[0];
+                let channels = Self::dims(&densities)[1];
+                let g = with_gaussians::<Self, _>(
+                    [&means, &scales, &rotations, &densities],
+                    &[&grad],
+                    |g, x| $crate::cpu::voxelize_backward(g, &grid, &options, x[0]),
                 );
                 (
-                    $write(g.means, vec![k, 3]),
-                    $write(g.scales, vec![k, 3]),
-                    $write(g.rotations, vec![k, 4]),
-                    $write(g.densities, vec![k, channels]),
+                    Self::tensor(g.means, vec![k, 3]),
+                    Self::tensor(g.scales, vec![k, 3]),
+                    Self::tensor(g.rotations, vec![k, 4]),
+                    Self::tensor(g.densities, vec![k, channels]),
                 )
             }
         }
     };
 }
-pub(crate) use impl_cpu_gaussian_ops;
+
+#[cfg(feature = "flex")]
+mod flex {
+    use super::*;
+    use burn::backend::{Flex, tensor::FloatTensor};
+    impl_cpu_gaussian_ops!(Flex);
+}
+
+// burn-ndarray is deprecated in Burn 0.22 (Flex is its successor); kept while it exists.
+#[cfg(feature = "ndarray")]
+#[allow(deprecated)]
+mod ndarray {
+    use super::*;
+    use burn::backend::{NdArray, tensor::FloatTensor};
+    impl_cpu_gaussian_ops!(NdArray);
+}

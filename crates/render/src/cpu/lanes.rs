@@ -9,38 +9,17 @@
 
 use super::{MulAdd, Separate, exp_neg_with};
 
-/// Test hook: while set, the dispatchers take the baseline path even on AVX2 CPUs (both paths
-/// give bit-identical results, so other tests running meanwhile are unaffected).
-#[cfg(test)]
-pub(crate) static FORCE_BASELINE: std::sync::atomic::AtomicBool =
-    std::sync::atomic::AtomicBool::new(false);
-
-/// Whether the running CPU has AVX2 and FMA (checked once; the row loops then run 8 lanes wide).
-pub(crate) fn has_avx2() -> bool {
-    #[cfg(test)]
-    if FORCE_BASELINE.load(std::sync::atomic::Ordering::Relaxed) {
-        return false;
-    }
-    #[cfg(target_arch = "x86_64")]
-    {
-        static HAS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        *HAS.get_or_init(|| is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
+pub(crate) use prism_kernel::simd::has_avx2_fma as has_avx2;
 
 /// Generates a dispatcher `$name` over one body compiled twice: for the build's baseline target
 /// with [`Portable`] lanes (unfused multiply-adds) and with AVX2+FMA enabled and [`Avx2`] lanes
 /// (fused ones), chosen at run time by [`has_avx2`]. The variants differ in rounding only.
 /// The expansion names `Lanes`, `Portable`, `Avx2` and `has_avx2`: import them where it is used.
 macro_rules! dispatched {
-    ($(#[$doc:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
+    ($(#[$doc:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
         $(#[$doc])*
         #[allow(clippy::too_many_arguments)]
-        fn $name($($arg: $ty),*) {
+        $vis fn $name($($arg: $ty),*) {
             #[inline(always)]
             #[allow(clippy::too_many_arguments)]
             fn body<L: Lanes>($($arg: $ty),*) $body

@@ -11,7 +11,7 @@ mod tiles;
 mod voxelize;
 
 pub use project::{
-    PREPARED_WIDTH, ProjectGrads, count_project_evaluations, project_backward,
+    PREPARED_WIDTH, ProjectGrads, count_project_evaluations, prepared_width, project_backward,
     project_backward_prepared, project_forward, project_forward_prepared, project_prepare,
 };
 pub use tiles::{Bins, TileBox, tile_span};

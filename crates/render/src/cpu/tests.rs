@@ -267,10 +267,10 @@ fn simd_dispatch_matches_baseline() {
             .collect();
         let opts = ProjectOptions::default();
         let run = |baseline: bool| {
-            lanes::FORCE_BASELINE.store(baseline, std::sync::atomic::Ordering::Relaxed);
+            prism_kernel::simd::force_baseline(baseline);
             let img = project_forward(&p.slices(), &screen, &cams, &opts);
             let grads = project_backward(&p.slices(), &screen, &cams, &opts, &grad);
-            lanes::FORCE_BASELINE.store(false, std::sync::atomic::Ordering::Relaxed);
+            prism_kernel::simd::force_baseline(false);
             (img, grads)
         };
         let (img_base, g_base) = run(true);
@@ -606,10 +606,10 @@ fn voxelize_simd_dispatch_matches_baseline() {
             .collect();
         let opts = VoxelizeOptions::default();
         let run = |baseline: bool| {
-            lanes::FORCE_BASELINE.store(baseline, std::sync::atomic::Ordering::Relaxed);
+            prism_kernel::simd::force_baseline(baseline);
             let vol = voxelize_forward(&p.slices(), &grid, &opts);
             let grads = voxelize_backward(&p.slices(), &grid, &opts, &r);
-            lanes::FORCE_BASELINE.store(false, std::sync::atomic::Ordering::Relaxed);
+            prism_kernel::simd::force_baseline(false);
             (vol, grads)
         };
         let (v0, g0) = run(true);

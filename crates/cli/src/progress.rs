@@ -1,0 +1,193 @@
+//! How the `prism` binary shows progress: [`Bars`], the library's
+//! [`Observer`](prism_domain::observe::Observer), draws one progress bar on stderr (a spinner
+//! for phases of unknown length) and prints notes above it.
+//!
+//! On a terminal the bar is redrawn in place. When stderr is not a terminal (`nohup`, a cluster
+//! job, a pipe into a log file), indicatif would draw nothing at all for the hours a
+//! paper-scale run takes; instead, the bar's line is written to stderr as plain text, one line
+//! at most every [`LOG_EVERY`], without cursor movement.
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle, TermLike};
+use prism_domain::observe::{Level, Observer};
+use std::fmt;
+use std::io::{self, IsTerminal, Write};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+/// Minimum time between two progress lines in a log.
+pub const LOG_EVERY: Duration = Duration::from_secs(30);
+
+const BAR: &str = "{msg} [{bar:25}] {pos}/{len} {elapsed_precise} ETA {eta}";
+const SPINNER: &str = "{spinner} [{elapsed_precise}] {msg}";
+
+/// Progress on stderr (see the module docs).
+pub struct Bars {
+    bar: ProgressBar,
+    phase: Mutex<String>,
+}
+
+impl Bars {
+    pub fn new() -> Self {
+        let bar = ProgressBar::with_draw_target(None, target());
+        if let Ok(style) = ProgressStyle::with_template(SPINNER) {
+            bar.set_style(style);
+        }
+        bar.enable_steady_tick(Duration::from_millis(200));
+        Bars {
+            bar,
+            phase: Mutex::new(String::new()),
+        }
+    }
+
+    /// Remove the bar (the command is done or failed).
+    pub fn finish(&self) {
+        self.bar.finish_and_clear();
+    }
+}
+
+impl Drop for Bars {
+    fn drop(&mut self) {
+        self.finish();
+    }
+}
+
+impl Observer for Bars {
+    fn phase(&self, name: &str, total: u64) {
+        let template = if total > 0 { BAR } else { SPINNER };
+        if let Ok(style) = ProgressStyle::with_template(template) {
+            self.bar.set_style(style.progress_chars("=> "));
+        }
+        self.bar.set_length(total);
+        self.bar.set_position(0);
+        self.bar.reset_eta();
+        self.bar.set_message(name.to_string());
+        *self.phase.lock().unwrap_or_else(|e| e.into_inner()) = name.to_string();
+    }
+
+    fn progress(&self, done: u64, status: &str) {
+        self.bar.set_position(done);
+        if !status.is_empty() {
+            let phase = self.phase.lock().unwrap_or_else(|e| e.into_inner());
+            self.bar.set_message(format!("{phase} {status}"));
+        }
+    }
+
+    fn note(&self, level: Level, text: &str) {
+        let prefix = match level {
+            Level::Info => "",
+            Level::Warning => "warning: ",
+        };
+        self.bar.suspend(|| eprintln!("{prefix}{text}"));
+    }
+}
+
+/// Stderr as a terminal, or as a log of [`LOG_EVERY`]-spaced lines when it is not one.
+pub fn target() -> ProgressDrawTarget {
+    if io::stderr().is_terminal() {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::term_like_with_hz(
+            Box::new(LogLines::new(Box::new(io::stderr()), LOG_EVERY)),
+            1,
+        )
+    }
+}
+
+/// An indicatif terminal that writes each drawn line as plain text, skipping lines that come
+/// sooner than `every` after the previous one.
+pub struct LogLines {
+    every: Duration,
+    state: Mutex<(Option<Instant>, Box<dyn Write + Send>)>,
+}
+
+impl LogLines {
+    pub fn new(out: Box<dyn Write + Send>, every: Duration) -> Self {
+        LogLines {
+            every,
+            state: Mutex::new((None, out)),
+        }
+    }
+}
+
+impl fmt::Debug for LogLines {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("LogLines")
+            .field("every", &self.every)
+            .finish()
+    }
+}
+
+impl TermLike for LogLines {
+    fn width(&self) -> u16 {
+        120
+    }
+    fn move_cursor_up(&self, _: usize) -> io::Result<()> {
+        Ok(())
+    }
+    fn move_cursor_down(&self, _: usize) -> io::Result<()> {
+        Ok(())
+    }
+    fn move_cursor_right(&self, _: usize) -> io::Result<()> {
+        Ok(())
+    }
+    fn move_cursor_left(&self, _: usize) -> io::Result<()> {
+        Ok(())
+    }
+    fn write_line(&self, s: &str) -> io::Result<()> {
+        self.write_str(s)
+    }
+    fn write_str(&self, s: &str) -> io::Result<()> {
+        let line = s.trim_end();
+        if line.is_empty() {
+            return Ok(());
+        }
+        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        let now = Instant::now();
+        if state.0.is_some_and(|t| now.duration_since(t) < self.every) {
+            return Ok(());
+        }
+        state.0 = Some(now);
+        writeln!(state.1, "{line}")
+    }
+    fn clear_line(&self) -> io::Result<()> {
+        Ok(())
+    }
+    fn flush(&self) -> io::Result<()> {
+        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        state.1.flush()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+
+    /// A writer whose bytes the test can read back.
+    #[derive(Clone, Default)]
+    struct Shared(Arc<Mutex<Vec<u8>>>);
+    impl Write for Shared {
+        fn write(&mut self, b: &[u8]) -> io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn log_lines_are_plain_and_throttled() {
+        let out = Shared::default();
+        let term = LogLines::new(Box::new(out.clone()), Duration::from_millis(200));
+        term.write_line("step 1/3").unwrap();
+        term.write_line("step 2/3").unwrap(); // too soon: skipped
+        term.write_str("   ").unwrap(); // blank: skipped, does not reset the clock
+        std::thread::sleep(Duration::from_millis(250));
+        term.move_cursor_up(1).unwrap();
+        term.clear_line().unwrap();
+        term.write_line("step 3/3").unwrap();
+        let text = String::from_utf8(out.0.lock().unwrap().clone()).unwrap();
+        assert_eq!(text, "step 1/3\nstep 3/3\n");
+    }
+}

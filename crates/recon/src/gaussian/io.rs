@@ -1,0 +1,332 @@
+//! Saving and loading trained Gaussians.
+//!
+//! * **safetensors** (`.safetensors`, readable from Python with `safetensors.numpy.load_file`):
+//!   float32 tensors `means [K,3]`, `scales_raw [K,3]`, `rotations [K,4]` (w, x, y, z),
+//!   `densities_raw [K,M]` in the normalised world, plus string metadata `format`
+//!   (`prism-gaussians/1`), `world_scale` (normalised units per mm), `density_scale` (mm⁻¹ per
+//!   normalised density unit), `scale_min`, `scale_max` (normalised units) and `info` (JSON
+//!   [`ModelInfo`]: channel labels, τ and physical coordinates of the density columns, the scan
+//!   geometry, the projection settings it was trained with). Physical values: centre_mm = means / world_scale,
+//!   σ_mm = (min + (max − min)·sigmoid(scales_raw)) / world_scale,
+//!   μ (mm⁻¹) = softplus(densities_raw) · density_scale.
+//! * **PLY** (binary little-endian, for point-cloud viewers): per vertex `x y z` (mm),
+//!   `scale_0..2` (σ in mm), `rot_0..3` (unit quaternion w, x, y, z) and one `density_<c>`
+//!   property per channel (mm⁻¹).
+
+use super::config::ProjectionConfig;
+use super::host::{HostGaussians, ScaleBounds, softplus};
+use super::model::GaussianModel;
+use super::world::World;
+use crate::{Error, Result};
+use burn::tensor::Device;
+use prism_domain::geometry::Geometry;
+use prism_domain::scene::Scene;
+use safetensors::{Dtype, SafeTensors, tensor::TensorView};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::fs;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+const FORMAT: &str = "prism-gaussians/1";
+
+/// What the density columns mean and where the model lives (stored as JSON metadata `info`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelInfo {
+    /// One label per density column.
+    pub channels: Vec<String>,
+    /// τ ∈ [0, 1] of each column (increasing for spectral models).
+    pub tau: Vec<f64>,
+    /// Physical coordinate of each column (keV, kVp, λ, …) and its unit.
+    pub coordinates: Vec<f64>,
+    pub unit: String,
+    /// Coordinate values mapped to τ = 0 and τ = 1 (the scene's channel range).
+    pub coordinate_range: [f64; 2],
+    /// The scan geometry (millimetres), for voxelizing and rendering queries.
+    pub geometry: Geometry,
+    /// How the model was trained to project; queries render the same way (absent in files
+    /// written before the setting existed, which were all trained with the default).
+    #[serde(default)]
+    pub projection: ProjectionConfig,
+}
+
+impl ModelInfo {
+    /// The info of a model whose density columns are the `channels` of `observed` (a subset of
+    /// `full`'s channels, τ as in `full`), trained with `projection`.
+    pub fn new(
+        full: &Scene,
+        observed: &Scene,
+        channels: &[usize],
+        projection: ProjectionConfig,
+    ) -> Self {
+        let coords: Vec<f64> = full.channels.iter().map(|c| c.coordinate.value()).collect();
+        let lo = coords.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = coords.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let ch = |c: usize| &observed.channels[c];
+        ModelInfo {
+            channels: channels.iter().map(|&c| ch(c).label.clone()).collect(),
+            tau: channels.iter().map(|&c| ch(c).tau).collect(),
+            coordinates: channels.iter().map(|&c| ch(c).coordinate.value()).collect(),
+            unit: ch(channels[0]).coordinate.unit().to_string(),
+            coordinate_range: [lo, hi],
+            geometry: observed.geometry.clone(),
+            projection,
+        }
+    }
+
+    /// τ of a physical coordinate value.
+    pub fn tau_of(&self, value: f64) -> f64 {
+        let [lo, hi] = self.coordinate_range;
+        if hi > lo {
+            (value - lo) / (hi - lo)
+        } else {
+            0.0
+        }
+    }
+}
+
+fn bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// Write `model` as safetensors (see the module docs).
+pub fn save_model(
+    path: &Path,
+    model: &GaussianModel,
+    raw: Option<Vec<f32>>,
+    world: &World,
+    info: &ModelInfo,
+) -> Result<()> {
+    let mut h = model.to_host();
+    if let Some(r) = raw {
+        h.channels = info.channels.len();
+        h.densities = r;
+    }
+    h.validate().map_err(|e| e.in_file(path))?;
+    let k = h.len();
+    let data = [
+        ("means", bytes(&h.means), vec![k, 3]),
+        ("scales_raw", bytes(&h.scales), vec![k, 3]),
+        ("rotations", bytes(&h.rotations), vec![k, 4]),
+        ("densities_raw", bytes(&h.densities), vec![k, h.channels]),
+    ];
+    let views: Vec<(&str, TensorView)> = data
+        .iter()
+        .map(|(n, b, s)| {
+            TensorView::new(Dtype::F32, s.clone(), b)
+                .map(|v| (*n, v))
+                .map_err(|e| Error::field(path, n.to_string(), e.to_string()))
+        })
+        .collect::<Result<_>>()?;
+    let meta: HashMap<String, String> = [
+        ("format", FORMAT.to_string()),
+        ("world_scale", world.scale.to_string()),
+        ("density_scale", world.density_scale.to_string()),
+        ("scale_min", model.bounds.min.to_string()),
+        ("scale_max", model.bounds.max.to_string()),
+        (
+            "info",
+            serde_json::to_string(info).expect("model info serialises"),
+        ),
+    ]
+    .into_iter()
+    .map(|(k, v)| (k.to_string(), v))
+    .collect();
+    write_safetensors(path, views, meta)
+}
+
+/// Write a safetensors file whose bytes depend only on its content. safetensors writes the
+/// metadata in hash-map order, which changes from run to run; the header is rewritten with its
+/// keys sorted (serde_json's objects are ordered maps) and padded to 8 bytes as before.
+pub(crate) fn write_safetensors(
+    path: &Path,
+    views: Vec<(&str, TensorView)>,
+    meta: HashMap<String, String>,
+) -> Result<()> {
+    let fail = |e: String| Error::field(path, ".", format!("writing safetensors failed: {e}"));
+    let bytes = safetensors::serialize(views, Some(meta)).map_err(|e| fail(e.to_string()))?;
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("an 8-byte header length")) as usize;
+    let header: serde_json::Value =
+        serde_json::from_slice(&bytes[8..8 + n]).map_err(|e| fail(e.to_string()))?;
+    let mut text = header.to_string();
+    while !text.len().is_multiple_of(8) {
+        text.push(' ');
+    }
+    let mut out = Vec::with_capacity(8 + text.len() + bytes.len() - 8 - n);
+    out.extend_from_slice(&(text.len() as u64).to_le_bytes());
+    out.extend_from_slice(text.as_bytes());
+    out.extend_from_slice(&bytes[8 + n..]);
+    fs::write(path, out).map_err(|e| Error::io(path, e))
+}
+
+/// A model read back from [`save_model`]'s file.
+pub struct LoadedModel {
+    pub model: GaussianModel,
+    pub world: World,
+    pub info: ModelInfo,
+}
+
+/// A safetensors file of a Prism `format`, read whole: its string metadata and float32 row
+/// tensors, with errors that name the file and the key.
+pub(crate) struct TensorFile<'p> {
+    path: &'p Path,
+    buf: Vec<u8>,
+    meta: HashMap<String, String>,
+}
+
+impl<'p> TensorFile<'p> {
+    /// Read `path` and check that its `metadata.format` is `format`.
+    pub fn open(path: &'p Path, format: &str) -> Result<Self> {
+        let buf = fs::read(path).map_err(|e| Error::io(path, e))?;
+        SafeTensors::deserialize(&buf)
+            .map_err(|e| Error::field(path, ".", format!("not a safetensors file: {e}")))?;
+        let (_, header) = SafeTensors::read_metadata(&buf)
+            .map_err(|e| Error::field(path, ".", format!("unreadable header: {e}")))?;
+        let meta = header.metadata().clone().unwrap_or_default();
+        let f = TensorFile { path, buf, meta };
+        let got = f.meta("format")?;
+        if got != format {
+            return Err(Error::field(
+                path,
+                "metadata.format",
+                format!("expected `{format}`, got `{got}`"),
+            ));
+        }
+        Ok(f)
+    }
+
+    /// The metadata string under `key`.
+    pub fn meta(&self, key: &str) -> Result<&str> {
+        self.meta
+            .get(key)
+            .map(String::as_str)
+            .ok_or_else(|| Error::field(self.path, format!("metadata.{key}"), "missing"))
+    }
+
+    /// The metadata under `key`, parsed as JSON (a bare number is JSON too).
+    pub fn json<T: for<'de> Deserialize<'de>>(&self, key: &str) -> Result<T> {
+        serde_json::from_str(self.meta(key)?)
+            .map_err(|e| Error::field(self.path, format!("metadata.{key}"), e.to_string()))
+    }
+
+    /// The f32 tensor `name` of shape `[rows, cols]` (any `rows`), row-major.
+    pub fn rows(&self, name: &str, cols: usize) -> Result<Vec<f32>> {
+        let st = SafeTensors::deserialize(&self.buf).expect("checked when opened");
+        let t = st
+            .tensor(name)
+            .map_err(|e| Error::field(self.path, name, e.to_string()))?;
+        if t.dtype() != Dtype::F32 || t.shape().len() != 2 || t.shape()[1] != cols {
+            return Err(Error::field(
+                self.path,
+                name,
+                format!(
+                    "expected f32 [K, {cols}], got {:?} {:?}",
+                    t.dtype(),
+                    t.shape()
+                ),
+            ));
+        }
+        Ok(t.data()
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect())
+    }
+}
+
+/// Read a safetensors model; errors name the file and the tensor or metadata key.
+pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
+    let f = TensorFile::open(path, FORMAT)?;
+    let num = |k: &str| -> Result<f64> { f.json(k) };
+    let info: ModelInfo = f.json("info")?;
+    let tensor = |name: &str, cols: usize| f.rows(name, cols);
+    let m = info.channels.len();
+    let host = HostGaussians {
+        channels: m,
+        means: tensor("means", 3)?,
+        scales: tensor("scales_raw", 3)?,
+        rotations: tensor("rotations", 4)?,
+        densities: tensor("densities_raw", m)?,
+    };
+    host.validate().map_err(|e| e.in_file(path))?;
+    let bounds = ScaleBounds {
+        min: num("scale_min")?,
+        max: num("scale_max")?,
+    };
+    bounds.validate().map_err(|e| e.in_file(path))?;
+    let world = World {
+        scale: num("world_scale")?,
+        density_scale: num("density_scale")?,
+    };
+    Ok(LoadedModel {
+        model: GaussianModel::new(&host, bounds, device),
+        world,
+        info,
+    })
+}
+
+/// Write `model` as a binary PLY point cloud in physical units (see the module docs).
+pub fn write_ply(
+    path: &Path,
+    model: &GaussianModel,
+    raw: Option<Vec<f32>>,
+    world: &World,
+    labels: &[String],
+) -> Result<()> {
+    let mut h = model.to_host();
+    if let Some(r) = raw {
+        h.channels = labels.len();
+        h.densities = r;
+    }
+    let k = h.len();
+    let m = h.channels;
+    let mut header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment Prism Gaussians: positions and scales in mm, densities in 1/mm\nelement vertex {k}\n"
+    );
+    for p in [
+        "x", "y", "z", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3",
+    ] {
+        header += &format!("property float {p}\n");
+    }
+    for c in 0..m {
+        let label = labels.get(c).map(String::as_str).unwrap_or("");
+        let safe: String = label
+            .chars()
+            .map(|ch| if ch.is_ascii_alphanumeric() { ch } else { '_' })
+            .collect();
+        header += &format!("property float density_{c}_{safe}\n");
+    }
+    header += "end_header\n";
+    let io = |e| Error::io(path, e);
+    let file = fs::File::create(path).map_err(io)?;
+    let mut w = BufWriter::new(file);
+    w.write_all(header.as_bytes()).map_err(io)?;
+    let inv = 1.0 / world.scale;
+    for i in 0..k {
+        let q = &h.rotations[4 * i..4 * i + 4];
+        let qn = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+        let q: Vec<f32> = if qn > 0.0 {
+            q.iter().map(|v| v / qn).collect()
+        } else {
+            vec![1.0, 0.0, 0.0, 0.0]
+        };
+        let mut row: Vec<f32> = Vec::with_capacity(10 + m);
+        row.extend(
+            h.means[3 * i..3 * i + 3]
+                .iter()
+                .map(|&v| (v as f64 * inv) as f32),
+        );
+        row.extend(
+            h.scales[3 * i..3 * i + 3]
+                .iter()
+                .map(|&r| (model.bounds.activate(r as f64) * inv) as f32),
+        );
+        row.extend(q);
+        row.extend(
+            h.densities[m * i..m * i + m]
+                .iter()
+                .map(|&r| (softplus(r as f64) * world.density_scale) as f32),
+        );
+        w.write_all(&bytes(&row)).map_err(io)?;
+    }
+    w.flush().map_err(io)
+}

@@ -1,0 +1,231 @@
+//! Every reconstruction method behind one typed configuration: the YAML's `method:` is read as
+//! a [`Method`] first, which picks the configuration type of its family (classic or Gaussian).
+
+use crate::classic::{ClassicConfig, ClassicMethod};
+use crate::gaussian::{DeviceChoice, GaussianConfig, GaussianMethod};
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// A reconstruction method, as a config's `method:` names it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Method {
+    #[serde(rename = "fdk")]
+    Fdk,
+    #[serde(rename = "sart")]
+    Sart,
+    #[serde(rename = "cgls")]
+    Cgls,
+    #[serde(rename = "r2gs")]
+    R2gs,
+    #[serde(rename = "4dsg-stage1")]
+    FourDsgStage1,
+    #[serde(rename = "4dsg")]
+    FourDsg,
+}
+
+/// The two families of methods, each with its configuration type.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Family {
+    Classic(ClassicMethod),
+    Gaussian(GaussianMethod),
+}
+
+impl Method {
+    pub fn family(self) -> Family {
+        match self {
+            Method::Fdk => Family::Classic(ClassicMethod::Fdk),
+            Method::Sart => Family::Classic(ClassicMethod::Sart),
+            Method::Cgls => Family::Classic(ClassicMethod::Cgls),
+            Method::R2gs => Family::Gaussian(GaussianMethod::R2gs),
+            Method::FourDsgStage1 => Family::Gaussian(GaussianMethod::Stage1),
+            Method::FourDsg => Family::Gaussian(GaussianMethod::FourDsg),
+        }
+    }
+
+    /// The name configs, logs and `metrics.json` use.
+    pub fn name(self) -> &'static str {
+        match self.family() {
+            Family::Classic(m) => m.name(),
+            Family::Gaussian(m) => m.name(),
+        }
+    }
+
+    /// Whether the method trains 4D-SG's shared geometry (and can continue from its checkpoint).
+    pub fn has_shared_geometry(self) -> bool {
+        matches!(self, Method::FourDsgStage1 | Method::FourDsg)
+    }
+}
+
+impl From<ClassicMethod> for Method {
+    fn from(m: ClassicMethod) -> Self {
+        match m {
+            ClassicMethod::Fdk => Method::Fdk,
+            ClassicMethod::Sart => Method::Sart,
+            ClassicMethod::Cgls => Method::Cgls,
+        }
+    }
+}
+
+impl From<GaussianMethod> for Method {
+    fn from(m: GaussianMethod) -> Self {
+        match m {
+            GaussianMethod::R2gs => Method::R2gs,
+            GaussianMethod::Stage1 => Method::FourDsgStage1,
+            GaussianMethod::FourDsg => Method::FourDsg,
+        }
+    }
+}
+
+/// A parsed run configuration of any method.
+#[derive(Clone, Debug, PartialEq)]
+pub enum MethodConfig {
+    Classic(ClassicConfig),
+    Gaussian(Box<GaussianConfig>),
+}
+
+impl MethodConfig {
+    /// Parse YAML text; errors name `file` and the field.
+    pub fn from_yaml(text: &str, file: &Path) -> Result<Self> {
+        let value: serde_yaml_ng::Value =
+            serde_yaml_ng::from_str(text).map_err(|e| prism_domain::yaml::error(file, &e))?;
+        let Some(method) = value.get("method") else {
+            return Err(Error::field(file, "method", "missing (a string)"));
+        };
+        let method: Method = serde_yaml_ng::from_value(method.clone())
+            .map_err(|e| Error::field(file, "method", e.to_string()))?;
+        match method.family() {
+            Family::Classic(_) => ClassicConfig::from_yaml(text, file).map(MethodConfig::Classic),
+            Family::Gaussian(_) => {
+                GaussianConfig::from_yaml(text, file).map(|c| MethodConfig::Gaussian(Box::new(c)))
+            }
+        }
+    }
+
+    /// Read and parse a YAML file.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        Self::from_yaml(&text, path)
+    }
+
+    pub fn method(&self) -> Method {
+        match self {
+            MethodConfig::Classic(c) => c.method.into(),
+            MethodConfig::Gaussian(c) => c.method.into(),
+        }
+    }
+
+    /// Where the method runs (classic methods: always the CPU).
+    pub fn device(&self) -> DeviceChoice {
+        match self {
+            MethodConfig::Classic(_) => DeviceChoice::Cpu,
+            MethodConfig::Gaussian(c) => c.device,
+        }
+    }
+
+    /// Run a Gaussian method on `device` instead of its configured device (classic methods
+    /// always run on the CPU).
+    pub fn set_device(&mut self, device: DeviceChoice) {
+        if let MethodConfig::Gaussian(c) = self {
+            c.device = device;
+        }
+    }
+
+    /// The configuration with every default made explicit (`config.resolved.yaml`).
+    pub fn resolved_yaml(&self) -> Result<String> {
+        let yaml = match self {
+            MethodConfig::Classic(c) => serde_yaml_ng::to_string(&c.resolved()),
+            MethodConfig::Gaussian(c) => serde_yaml_ng::to_string(c),
+        };
+        yaml.map_err(|e| Error::invalid("config", e.to_string()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_method_picks_the_parser_and_errors_name_the_file() {
+        let f = Path::new("run.yaml");
+        let c = MethodConfig::from_yaml("method: sart\niterations: 2\n", f).unwrap();
+        assert!(matches!(c, MethodConfig::Classic(_)));
+        assert_eq!(c.method(), Method::Sart);
+        let c = MethodConfig::from_yaml("method: 4dsg-stage1\niterations: 5\n", f).unwrap();
+        assert!(matches!(c, MethodConfig::Gaussian(_)));
+        assert_eq!(c.method(), Method::FourDsgStage1);
+        for (yaml, needles) in [
+            (
+                "method: nerf\n",
+                &["run.yaml", "method", "nerf", "4dsg-stage1"][..],
+            ),
+            ("iterations: 3\n", &["run.yaml", "method", "missing"]),
+            ("method: r2gs\nlr: {position: 3}\n", &["run.yaml", "lr"]),
+            ("method: r2gs\niterations: 0\n", &["iterations"]),
+            (
+                "method: r2gs\nprojection: {cutoff: 0}\n",
+                &["run.yaml", "projection.cutoff"],
+            ),
+            (
+                "method: r2gs\nprojection: {mode: curved}\n",
+                &["run.yaml", "curved"],
+            ),
+            ("method: sart\nfilter: triangle\n", &["run.yaml", "filter"]),
+        ] {
+            let e = MethodConfig::from_yaml(yaml, f).unwrap_err().to_string();
+            for n in needles {
+                assert!(e.contains(n), "`{n}` not in: {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn partial_sections_take_the_rest_from_their_defaults() {
+        let f = Path::new("run.yaml");
+        let yaml = "method: 4dsg\ninit: {n_points: 300}\ndensify: {every: 50}\n\
+                    stage2: {freeze: {position: true}}\nloss: {lambda_tv: 0}\n";
+        let MethodConfig::Gaussian(c) = MethodConfig::from_yaml(yaml, f).unwrap() else {
+            panic!("a Gaussian config");
+        };
+        let d = GaussianConfig::new(GaussianMethod::FourDsg);
+        assert_eq!(c.init.n_points, 300);
+        assert_eq!(c.init.threshold, d.init.threshold);
+        let densify = c.densify.unwrap();
+        assert_eq!(densify.every, 50);
+        assert_eq!(densify.until, d.densify.as_ref().unwrap().until);
+        assert!(c.stage2.freeze.position && !c.stage2.freeze.scale);
+        assert_eq!(c.stage2.iterations, d.stage2.iterations);
+        assert_eq!(
+            (c.loss.lambda_tv, c.loss.lambda_dssim),
+            (0.0, d.loss.lambda_dssim)
+        );
+        // `densify: null` turns densification off; an absent section keeps the default.
+        let MethodConfig::Gaussian(c) =
+            MethodConfig::from_yaml("method: r2gs\ndensify: null\n", f).unwrap()
+        else {
+            panic!("a Gaussian config");
+        };
+        assert!(c.densify.is_none());
+        // The resolved config reads back as the same config.
+        let resolved = MethodConfig::Gaussian(c.clone()).resolved_yaml().unwrap();
+        assert_eq!(
+            MethodConfig::from_yaml(&resolved, f).unwrap(),
+            MethodConfig::Gaussian(c)
+        );
+    }
+
+    #[test]
+    fn every_shipped_recon_config_parses() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/recon");
+        let mut n = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "yaml") {
+                MethodConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                n += 1;
+            }
+        }
+        assert!(n >= 7, "{n} configs");
+    }
+}

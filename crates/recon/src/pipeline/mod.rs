@@ -1,0 +1,42 @@
+//! The run pipeline: one entry point, [`run`], for every method. It checks the scene, runs the
+//! method's stages into a [`RunDir`], scores the volumes ([`crate::evaluate`]) and publishes the
+//! directory as a whole. [`ablation`] trains several stage-2 variants from one stage 1.
+
+pub mod ablation;
+mod classic;
+mod gaussian;
+mod run_dir;
+mod setup;
+
+pub use run_dir::{Manifest, RunDir};
+pub use setup::{Outcome, RunOptions};
+
+use crate::{MethodConfig, Result};
+use prism_domain::scene::Scene;
+
+/// Reconstruct `scene` with `config` into `dir` and publish it.
+pub fn run(
+    config: &MethodConfig,
+    scene: &Scene,
+    mut dir: RunDir,
+    options: &RunOptions,
+) -> Result<Outcome> {
+    options.check(config)?;
+    dir.write_text(RunDir::CONFIG, &config.resolved_yaml()?)?;
+    let metrics = match config {
+        MethodConfig::Classic(c) => classic::run(c, scene, &mut dir, options.observer)?,
+        MethodConfig::Gaussian(c) => gaussian::run(c, scene, &mut dir, options)?,
+    };
+    if let Some(m) = &metrics {
+        dir.write_json(RunDir::METRICS, m)?;
+    }
+    Ok(Outcome {
+        dir: dir.publish()?,
+        metrics,
+    })
+}
+
+#[cfg(test)]
+pub(crate) mod tests;
+#[cfg(test)]
+mod gaussian_tests;

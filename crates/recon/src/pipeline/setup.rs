@@ -1,0 +1,99 @@
+//! What a run is given and what it sees: its options, and the scene checked and split into the
+//! observed and the held-out channels.
+
+use super::run_dir::RunDir;
+use crate::evaluate::Metrics;
+use crate::{Error, MethodConfig, Result};
+use burn::tensor::Device;
+use prism_domain::observe::{Level, Observer};
+use prism_domain::projector::check_fov;
+use prism_domain::scene::Scene;
+use std::borrow::Cow;
+use std::path::{Path, PathBuf};
+
+/// How a run runs: where, from what, and who hears of its progress.
+pub struct RunOptions<'a> {
+    /// The device of the Gaussian methods (classic methods run on the CPU).
+    pub device: Device,
+    /// `4dsg` / `4dsg-stage1`: continue from this stage-1 checkpoint (a file, or a run directory
+    /// holding one) instead of training stage 1.
+    pub from_geometry: Option<&'a Path>,
+    pub observer: &'a dyn Observer,
+}
+
+impl RunOptions<'_> {
+    /// Whether these options suit `config` (called by [`run`]; callers may call it before they
+    /// create the run directory).
+    pub fn check(&self, config: &MethodConfig) -> Result<()> {
+        let method = config.method();
+        if self.from_geometry.is_some() && !method.has_shared_geometry() {
+            return Err(Error::invalid(
+                "--from-geometry",
+                format!(
+                    "`{}` has no shared geometry: --from-geometry applies to `4dsg` and \
+                     `4dsg-stage1`",
+                    method.name()
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A finished run.
+#[derive(Clone, Debug)]
+pub struct Outcome {
+    /// Where the run directory was published.
+    pub dir: PathBuf,
+    /// The scores (`metrics.json`), when the scene has reference volumes.
+    pub metrics: Option<Metrics>,
+}
+
+/// The scene as a run sees it: checked, its held-out channels removed, the training views of
+/// each remaining channel.
+pub(crate) struct Setup<'a> {
+    /// The full scene (held-out channels included, for scoring predictions).
+    pub full: &'a Scene,
+    /// The scene without held-out channels (the full scene, borrowed, when none is held out).
+    pub observed: Cow<'a, Scene>,
+    /// Indices (in `full`) of the held-out channels.
+    pub held: Vec<usize>,
+    /// Training views of each observed channel.
+    pub views: Vec<Vec<usize>>,
+    /// Fraction of the volume outside the field of view (for the metrics).
+    pub unseen: f64,
+}
+
+impl<'a> Setup<'a> {
+    /// Check `scene` (and that its channels' volumes get distinct files), warn about voxels no
+    /// ray sees, and set the `held` channels aside.
+    pub fn new(scene: &'a Scene, held: Vec<usize>, observer: &dyn Observer) -> Result<Self> {
+        scene.validate()?;
+        RunDir::check_labels(scene)?;
+        let unseen = check_fov(&scene.geometry).map_err(|e| Error::from(e).under("geometry"))?;
+        if unseen > 0.0 {
+            observer.note(
+                Level::Warning,
+                &format!(
+                    "{:.1} % of the volume grid's voxels are seen by no ray; they stay at their \
+                     initial value",
+                    100.0 * unseen
+                ),
+            );
+        }
+        let observed = if held.is_empty() {
+            Cow::Borrowed(scene)
+        } else {
+            Cow::Owned(scene.without_channels(&held))
+        };
+        let views = observed.channel_training_views()?;
+        Ok(Setup {
+            full: scene,
+            observed,
+            held,
+            views,
+            unseen,
+        })
+    }
+}
+

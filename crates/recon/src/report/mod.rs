@@ -1,0 +1,190 @@
+//! Per-channel comparison of finished runs (`prism report`): one row per channel, one PSNR/SSIM
+//! column pair per run, from each run directory's `metrics.json` (fitted channels) and
+//! `holdout.json` (channels a spectral model predicted without training data).
+
+use crate::evaluate::Metrics;
+use crate::pipeline::RunDir;
+use crate::query::HoldoutScore;
+use crate::{Error, Result};
+use std::fmt::Write as _;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+/// One channel's scores in one run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChannelScore {
+    pub label: String,
+    pub psnr: Option<f64>,
+    pub ssim: Option<f64>,
+    /// Predicted from the other channels (held out of training).
+    pub held_out: bool,
+    /// The channel's volume (`<label>.npy`, mm⁻¹).
+    pub volume: PathBuf,
+}
+
+/// What `prism report` reads from one run directory.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunScores {
+    pub dir: PathBuf,
+    pub method: String,
+    /// Training / reconstruction seconds (evaluation excluded).
+    pub seconds: f64,
+    pub channels: Vec<ChannelScore>,
+}
+
+fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+    let text = fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    serde_json::from_str(&text).map_err(|e| Error::field(path, ".", e.to_string()))
+}
+
+impl RunScores {
+    /// Read `dir/metrics.json` and, when present, `dir/holdout.json`.
+    pub fn load(dir: &Path) -> Result<Self> {
+        let metrics: Metrics = read_json(&dir.join(RunDir::METRICS))?;
+        let volume = |label: &str| dir.join(RunDir::volume_file(label));
+        let mut channels: Vec<ChannelScore> = metrics
+            .channels
+            .iter()
+            .map(|c| ChannelScore {
+                label: c.label.clone(),
+                psnr: Some(c.psnr),
+                ssim: Some(c.ssim),
+                held_out: false,
+                volume: volume(&c.label),
+            })
+            .collect();
+        let holdout = dir.join(RunDir::HOLDOUT);
+        if holdout.exists() {
+            let scores: Vec<HoldoutScore> = read_json(&holdout)?;
+            channels.extend(scores.into_iter().map(|s| ChannelScore {
+                volume: volume(&s.label),
+                label: s.label,
+                psnr: s.volume_psnr,
+                ssim: s.volume_ssim,
+                held_out: true,
+            }));
+        }
+        Ok(RunScores {
+            dir: dir.to_path_buf(),
+            method: metrics.method,
+            seconds: metrics.wall_s,
+            channels,
+        })
+    }
+}
+
+/// Markdown table: rows are the channels of the first run (in its order, then any channel only
+/// later runs have), columns PSNR (dB) / SSIM per run; predicted (held-out) values are marked
+/// `*`. The last rows give the mean over fitted channels and the time.
+pub fn table(runs: &[RunScores]) -> String {
+    let mut labels: Vec<&str> = Vec::new();
+    for r in runs {
+        for c in &r.channels {
+            if !labels.contains(&c.label.as_str()) {
+                labels.push(&c.label);
+            }
+        }
+    }
+    let mut s = String::from("| channel |");
+    for r in runs {
+        let _ = write!(s, " {} PSNR | {} SSIM |", r.method, r.method);
+    }
+    s.push_str("\n|---|");
+    s.push_str(&"---|---|".repeat(runs.len()));
+    s.push('\n');
+    let cell = |v: Option<f64>, digits: usize, held: bool| match v {
+        Some(x) => format!("{x:.digits$}{}", if held { "*" } else { "" }),
+        None => "–".to_string(),
+    };
+    for l in &labels {
+        let _ = write!(s, "| {l} |");
+        for r in runs {
+            match r.channels.iter().find(|c| c.label == *l) {
+                Some(c) => {
+                    let _ = write!(
+                        s,
+                        " {} | {} |",
+                        cell(c.psnr, 2, c.held_out),
+                        cell(c.ssim, 4, c.held_out)
+                    );
+                }
+                None => s.push_str(" – | – |"),
+            }
+        }
+        s.push('\n');
+    }
+    s.push_str("| mean (fitted) |");
+    for r in runs {
+        let fitted: Vec<&ChannelScore> = r.channels.iter().filter(|c| !c.held_out).collect();
+        let mean = |f: fn(&ChannelScore) -> Option<f64>| {
+            let v: Vec<f64> = fitted.iter().filter_map(|c| f(c)).collect();
+            (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+        };
+        let _ = write!(
+            s,
+            " {} | {} |",
+            cell(mean(|c| c.psnr), 2, false),
+            cell(mean(|c| c.ssim), 4, false)
+        );
+    }
+    s.push_str("\n| time (s) |");
+    for r in runs {
+        let _ = write!(s, " {:.1} | |", r.seconds);
+    }
+    s.push('\n');
+    if runs.iter().any(|r| r.channels.iter().any(|c| c.held_out)) {
+        s.push_str("\n`*` predicted by the spectral model for a channel held out of training.\n");
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(method: &str, channels: &[(&str, f64, bool)]) -> RunScores {
+        RunScores {
+            dir: PathBuf::from(method),
+            method: method.into(),
+            seconds: 1.5,
+            channels: channels
+                .iter()
+                .map(|&(l, p, held_out)| ChannelScore {
+                    label: l.into(),
+                    psnr: Some(p),
+                    ssim: Some(p / 100.0),
+                    held_out,
+                    volume: PathBuf::from(format!("{l}.npy")),
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn the_table_aligns_channels_marks_predictions_and_averages_fitted_ones() {
+        let a = run("sart", &[("40keV", 30.0, false), ("70keV", 32.0, false)]);
+        let b = run("4dsg", &[("40keV", 34.0, false), ("70keV", 29.0, true)]);
+        let t = table(&[a, b]);
+        assert!(
+            t.contains("| 40keV | 30.00 | 0.3000 | 34.00 | 0.3400 |"),
+            "{t}"
+        );
+        assert!(
+            t.contains("| 70keV | 32.00 | 0.3200 | 29.00* | 0.2900* |"),
+            "{t}"
+        );
+        // The held-out channel is not in 4dsg's mean.
+        assert!(
+            t.contains("| mean (fitted) | 31.00 | 0.3100 | 34.00 | 0.3400 |"),
+            "{t}"
+        );
+        assert!(t.contains("predicted by the spectral model"));
+    }
+
+    #[test]
+    fn a_missing_metrics_file_names_the_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = RunScores::load(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("metrics.json"), "{e}");
+    }
+}

@@ -1,0 +1,158 @@
+//! Projection of Gaussians onto the detector of each view: forward and backward.
+//!
+//! Per view, every Gaussian is prepared once in f64 ([`gm::splat`] or [`gm::exact_splat`]) and
+//! binned into 16×16 tiles; the prepared geometry is shared by all M density channels. A pixel
+//! receives a Gaussian iff it lies within the Mahalanobis cut-off (affine: of the 2D footprint;
+//! exact: of the ray's closest approach) — a relative criterion, unlike upstream's absolute
+//! `ρμG < 1e-5` skip, so densities of 1e-8 still render.
+//!
+//! The affine preparation (f32 pixel splats, [`project_prepare`]) can be computed once and read
+//! by both passes ([`project_forward_prepared`], [`project_backward_prepared`]); the Burn ops do
+//! so. The affine backward evaluates `G` once per (pixel, Gaussian) in 8-lane blocks
+//! ([`super::lanes`], AVX2+FMA when the CPU has it), accumulates per-(tile, Gaussian)
+//! image-space sums in registers, writes them once, and chains them per Gaussian through
+//! [`gm::splat_backward_with`] (one f64 splat per Gaussian); the exact backward accumulates
+//! per-pixel `∂/∂(centre, Σ⁻¹)`.
+
+mod backward;
+mod forward;
+mod prepare;
+mod rows;
+
+use backward::*;
+use forward::*;
+pub use prepare::{PREPARED_WIDTH, prepared_width, project_prepare};
+use prepare::*;
+use rows::*;
+
+use rayon::prelude::*;
+
+use super::GaussianSlices;
+#[cfg(target_arch = "x86_64")]
+use super::lanes::Avx2;
+use super::lanes::{LANES, Lanes, Portable, dispatched, has_avx2};
+use super::tiles::{Bins, TileBox, tile_span};
+use crate::camera::Camera;
+use crate::gaussian_math::{
+    self as gm, ExactSplat, GaussianGeom, SplatGrad, camera_ray, exact_splat, exact_splat_backward,
+    line_integral_backward, ray_terms, sym_pack, sym_unpack,
+};
+use crate::options::{ProjectOptions, ProjectionMode};
+
+/// Detector tile edge in pixels.
+pub const TILE: usize = 16;
+
+/// `[0, 1, …, TILE − 1]` as f32: pixel offsets within a row without int→float conversions
+/// (which would keep the row loops from vectorising).
+const IOTA: [f32; TILE] = {
+    let mut a = [0.0f32; TILE];
+    let mut i = 0;
+    while i < TILE {
+        a[i] = i as f32;
+        i += 1;
+    }
+    a
+};
+
+/// Gradients of a projection with respect to every input, row-major like the inputs.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ProjectGrads {
+    pub means: Vec<f32>,
+    pub scales: Vec<f32>,
+    pub rotations: Vec<f32>,
+    pub densities: Vec<f32>,
+    /// `∂L/∂(screen offset)` per view and Gaussian, `[V, K, 2]` in pixels⁻¹: the projected-centre
+    /// gradient that densification thresholds.
+    pub screen: Vec<f32>,
+}
+
+/// Forward projection: image `[V, M, rows, cols]` of line integrals.
+///
+/// `screen` holds per-view screen offsets `[V, K, 2]` (pixels) added to the projected centres
+/// (zeros in normal use; their gradient is the densification statistic). Every camera must have
+/// the same detector size (checked by the caller).
+pub fn project_forward(
+    g: &GaussianSlices,
+    screen: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
+    forward(g, screen, None, cams, opts)
+}
+
+/// [`project_forward`] reading the per-Gaussian preparation from `prepared` (made by
+/// [`project_prepare`] from the same inputs). A buffer of the wrong length is ignored (the
+/// preparation is then recomputed); boxes are clamped to the detector.
+pub fn project_forward_prepared(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
+    forward(g, screen, fitting(prepared, g, cams), cams, opts)
+}
+
+/// `prepared` if it has the length [`project_prepare`] gives for `g` and `cams`.
+fn fitting<'a>(prepared: &'a [f32], g: &GaussianSlices, cams: &[Camera]) -> Option<&'a [f32]> {
+    (prepared.len() == cams.len() * g.len() * PREPARED_WIDTH).then_some(prepared)
+}
+
+/// Backward projection: gradients of `L` given `grad = ∂L/∂image` (`[V, M, rows, cols]`).
+pub fn project_backward(
+    g: &GaussianSlices,
+    screen: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+    grad: &[f32],
+) -> ProjectGrads {
+    backward(g, screen, None, cams, opts, grad)
+}
+
+/// [`project_backward`] reading the per-Gaussian preparation from `prepared` (see
+/// [`project_forward_prepared`]).
+pub fn project_backward_prepared(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+    grad: &[f32],
+) -> ProjectGrads {
+    backward(g, screen, fitting(prepared, g, cams), cams, opts, grad)
+}
+
+/// Number of Gaussian–pixel evaluations one forward pass performs (affine: the pixels of each
+/// footprint's cut-off rows; exact: every pixel of the footprint box; summed over views) — the
+/// work unit of the benchmarks.
+pub fn count_project_evaluations(
+    g: &GaussianSlices,
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> usize {
+    let screen = vec![0.0f32; 2 * g.len() * cams.len()];
+    let mut total = 0;
+    for (v, cam) in cams.iter().enumerate() {
+        let (prep, _) = prepare(g, &screen, None, v, cam, opts);
+        total += match prep {
+            Prepared::Affine(splats) => {
+                let cut2 = (opts.cutoff * opts.cutoff) as f32;
+                let spans = |s: &PixelSplat| -> usize {
+                    (s.y0..s.y1)
+                        .filter_map(|y| {
+                            row_span(s, y as f32 - s.my, cut2, s.x0 as usize, s.x1 as usize)
+                        })
+                        .map(|(a, b)| b - a)
+                        .sum()
+                };
+                splats.iter().flatten().map(spans).sum::<usize>()
+            }
+            Prepared::Exact(splats) => splats
+                .iter()
+                .flatten()
+                .map(|(_, px)| (px[1] - px[0]) * (px[3] - px[2]))
+                .sum(),
+        };
+    }
+    total
+}

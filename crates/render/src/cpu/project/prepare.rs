@@ -1,0 +1,261 @@
+//! The per-view preparation of every Gaussian: affine pixel splats (f32, also the prepared
+//! state the Burn ops keep between forward and backward) or exact splats (f64), with their
+//! pixel and tile boxes.
+
+use super::*;
+
+/// An affine splat reduced to what the pixel loop reads (f32), with its clamped pixel box.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct PixelSplat {
+    pub(super) mx: f32,
+    pub(super) my: f32,
+    pub(super) a: f32,
+    pub(super) beta: f32,
+    pub(super) gamma: f32,
+    /// Integration factor μ (length units), so a tile's pass reads one array per Gaussian.
+    pub(super) mu: f32,
+    /// Pixel box `[x0, x1) × [y0, y1)` clamped to the detector.
+    pub(super) x0: u32,
+    pub(super) x1: u32,
+    pub(super) y0: u32,
+    pub(super) y1: u32,
+}
+
+/// Width of one Gaussian's affine record in a prepared-state buffer (see [`project_prepare`]).
+pub const PREPARED_WIDTH: usize = 10;
+
+/// Width of one Gaussian's record in this backend's prepared state for `mode`: the affine
+/// [`PixelSplat`] record, or nothing (exact mode prepares in f64 inside each pass).
+pub fn prepared_width(mode: ProjectionMode) -> usize {
+    match mode {
+        ProjectionMode::Affine => PREPARED_WIDTH,
+        ProjectionMode::Exact => 0,
+    }
+}
+
+impl PixelSplat {
+    /// `[mx, my, a, β, γ, μ, x0, x1, y0, y1]`; a culled Gaussian is all zeros (an empty box).
+    /// Box bounds are below 2²⁰ (the detector limit), so exact in f32.
+    pub(super) fn pack(s: Option<&PixelSplat>) -> [f32; PREPARED_WIDTH] {
+        s.map_or([0.0; PREPARED_WIDTH], |s| {
+            [
+                s.mx,
+                s.my,
+                s.a,
+                s.beta,
+                s.gamma,
+                s.mu,
+                s.x0 as f32,
+                s.x1 as f32,
+                s.y0 as f32,
+                s.y1 as f32,
+            ]
+        })
+    }
+
+    /// Inverse of [`PixelSplat::pack`], with the box clamped to `det` (so a record made for
+    /// another detector cannot index outside this one) and its tile box; `None` if culled.
+    pub(super) fn unpack(v: &[f32], det: &Detector) -> Option<(PixelSplat, TileBox)> {
+        // `as` saturates (NaN → 0), so the clamped box is always a valid index range.
+        let x0 = v[6] as usize;
+        let x1 = (v[7] as usize).min(det.cols);
+        let y0 = v[8] as usize;
+        let y1 = (v[9] as usize).min(det.rows);
+        if x0 >= x1 || y0 >= y1 {
+            return None;
+        }
+        let s = PixelSplat {
+            mx: v[0],
+            my: v[1],
+            a: v[2],
+            beta: v[3],
+            gamma: v[4],
+            mu: v[5],
+            x0: x0 as u32,
+            x1: x1 as u32,
+            y0: y0 as u32,
+            y1: y1 as u32,
+        };
+        let tb = TileBox {
+            lo: [x0 / TILE, y0 / TILE, 0],
+            hi: [(x1 - 1) / TILE + 1, (y1 - 1) / TILE + 1, 1],
+        };
+        Some((s, tb))
+    }
+}
+
+pub(super) struct Detector {
+    pub(super) rows: usize,
+    pub(super) cols: usize,
+    pub(super) tiles_x: usize,
+    pub(super) tiles_y: usize,
+}
+
+impl Detector {
+    pub(super) fn new(cam: &Camera) -> Self {
+        Self {
+            rows: cam.rows,
+            cols: cam.cols,
+            tiles_x: cam.cols.div_ceil(TILE),
+            tiles_y: cam.rows.div_ceil(TILE),
+        }
+    }
+
+    pub(super) fn tile_rect(&self, t: usize) -> (usize, usize, usize, usize) {
+        let (tx, ty) = (t % self.tiles_x, t / self.tiles_x);
+        let x0 = tx * TILE;
+        let y0 = ty * TILE;
+        (
+            x0,
+            (x0 + TILE).min(self.cols),
+            y0,
+            (y0 + TILE).min(self.rows),
+        )
+    }
+
+    /// Pixel and tile boxes of a footprint `[col_min, col_max] × [row_min, row_max]`.
+    pub(super) fn boxes(&self, bb: [f64; 4]) -> Option<([usize; 4], TileBox)> {
+        let (x0, x1, tx0, tx1) = tile_span(bb[0], bb[1], self.cols, TILE)?;
+        let (y0, y1, ty0, ty1) = tile_span(bb[2], bb[3], self.rows, TILE)?;
+        Some((
+            [x0, x1, y0, y1],
+            TileBox {
+                lo: [tx0, ty0, 0],
+                hi: [tx1, ty1, 1],
+            },
+        ))
+    }
+}
+
+/// Per-view preparation of every Gaussian.
+pub(super) enum Prepared {
+    /// Pixel splats (the chain rule recomputes the f64 splat it needs).
+    Affine(Vec<Option<PixelSplat>>),
+    Exact(Vec<Option<(ExactSplat, [usize; 4])>>),
+}
+
+pub(super) fn screen_offset(screen: &[f32], k: usize, view: usize, i: usize) -> [f64; 2] {
+    let o = 2 * (view * k + i);
+    [screen[o] as f64, screen[o + 1] as f64]
+}
+
+/// The affine pixel splat (f32) and tile box of Gaussian `i` in `view`, or `None` if it is
+/// culled (non-finite density, degenerate, behind the near plane, off the detector).
+pub(super) fn affine_splat(
+    g: &GaussianSlices,
+    screen: &[f32],
+    view: usize,
+    i: usize,
+    cam: &Camera,
+    det: &Detector,
+    opts: &ProjectOptions,
+) -> Option<(PixelSplat, TileBox)> {
+    g.densities_of(i)?;
+    let off = screen_offset(screen, g.len(), view, i);
+    let near = opts.near_fraction * cam.sdd;
+    let s = gm::splat(&g.geom(i), cam, off, opts.cutoff, near)?;
+    let bb = [
+        s.mean[0] - s.half_extent[0],
+        s.mean[0] + s.half_extent[0],
+        s.mean[1] - s.half_extent[1],
+        s.mean[1] + s.half_extent[1],
+    ];
+    let (px, tb) = det.boxes(bb)?;
+    let ps = PixelSplat {
+        mx: s.mean[0] as f32,
+        my: s.mean[1] as f32,
+        a: s.conic.a as f32,
+        beta: s.conic.beta as f32,
+        gamma: s.conic.gamma as f32,
+        mu: s.mu as f32,
+        x0: px[0] as u32,
+        x1: px[1] as u32,
+        y0: px[2] as u32,
+        y1: px[3] as u32,
+    };
+    (ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite()).then_some((ps, tb))
+}
+
+/// Prepared state of every view and Gaussian, `[V, K, PREPARED_WIDTH]` (f32): the affine pixel
+/// splats ([`PixelSplat::pack`]) that [`project_forward_prepared`] and
+/// [`project_backward_prepared`] read instead of recomputing them, so one forward and its
+/// backward prepare every Gaussian once. Exact mode keeps its f64 preparation internal (f32
+/// would lose the per-ray accuracy it exists for): its prepared state is empty.
+pub fn project_prepare(
+    g: &GaussianSlices,
+    screen: &[f32],
+    cams: &[Camera],
+    opts: &ProjectOptions,
+) -> Vec<f32> {
+    let k = g.len();
+    let mut out = vec![0.0f32; cams.len() * k * prepared_width(opts.mode)];
+    if opts.mode == ProjectionMode::Exact || k == 0 {
+        return out;
+    }
+    for (v, cam) in cams.iter().enumerate() {
+        let det = Detector::new(cam);
+        out[v * k * PREPARED_WIDTH..(v + 1) * k * PREPARED_WIDTH]
+            .par_chunks_mut(PREPARED_WIDTH)
+            .enumerate()
+            .with_min_len(64)
+            .for_each(|(i, rec)| {
+                let s = affine_splat(g, screen, v, i, cam, &det, opts);
+                rec.copy_from_slice(&PixelSplat::pack(s.as_ref().map(|(s, _)| s)));
+            });
+    }
+    out
+}
+
+/// The preparation of `view`: unpacked from `prepared` (affine, see [`project_prepare`]) or
+/// computed (exact, or affine without a prepared state); with every Gaussian's tile box.
+pub(super) fn prepare(
+    g: &GaussianSlices,
+    screen: &[f32],
+    prepared: Option<&[f32]>,
+    view: usize,
+    cam: &Camera,
+    opts: &ProjectOptions,
+) -> (Prepared, Vec<Option<TileBox>>) {
+    let k = g.len();
+    let det = Detector::new(cam);
+    match opts.mode {
+        ProjectionMode::Affine => {
+            // Split in the pool (no intermediate Vec, no serial unzip).
+            let split = |it: Option<(PixelSplat, TileBox)>| {
+                it.map_or((None, None), |(s, b)| (Some(s), Some(b)))
+            };
+            let (splats, boxes) = match prepared {
+                Some(p) => p[view * k * PREPARED_WIDTH..(view + 1) * k * PREPARED_WIDTH]
+                    .par_chunks(PREPARED_WIDTH)
+                    .with_min_len(256)
+                    .map(|rec| split(PixelSplat::unpack(rec, &det)))
+                    .unzip(),
+                None => (0..k)
+                    .into_par_iter()
+                    .with_min_len(64)
+                    .map(|i| split(affine_splat(g, screen, view, i, cam, &det, opts)))
+                    .unzip(),
+            };
+            (Prepared::Affine(splats), boxes)
+        }
+        ProjectionMode::Exact => {
+            let (splats, boxes) = (0..k)
+                .into_par_iter()
+                .map(|i| {
+                    if g.densities_of(i).is_none() {
+                        return (None, None);
+                    }
+                    let off = screen_offset(screen, k, view, i);
+                    let Some(s) = exact_splat(&g.geom(i), cam, off, opts.cutoff) else {
+                        return (None, None);
+                    };
+                    match det.boxes(s.bbox) {
+                        Some((px, tb)) => (Some((s, px)), Some(tb)),
+                        None => (None, None),
+                    }
+                })
+                .unzip();
+            (Prepared::Exact(splats), boxes)
+        }
+    }
+}
