@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""RTK side of Prism's classic-CT benchmark (called by `prism_core::classic::bench`).
+"""RTK side of Prism's classic-CT benchmark (called by `prism_recon::classic::bench`).
 
 Usage: rtk_classic.py WORK_DIR [THREADS] [REPEATS]
 

@@ -12,9 +12,10 @@ out=${1:-runs/main-job}
 cargo build --release -p prism-cli
 prism=target/release/prism
 $prism simulate configs/phantom-4mono.yaml -o "$out/scene"
-$prism recon configs/recon/fdk.yaml -s "$out/scene" -o "$out/fdk"
-$prism recon configs/recon/sart.yaml -s "$out/scene" -o "$out/sart"
-$prism recon configs/recon/4dsg-holdout.yaml -s "$out/scene" -o "$out/4dsg"
+# --force: a rerun replaces the earlier run's files (the script owns these directories).
+$prism recon configs/recon/fdk.yaml -s "$out/scene" -o "$out/fdk" --force
+$prism recon configs/recon/sart.yaml -s "$out/scene" -o "$out/sart" --force
+$prism recon configs/recon/4dsg-holdout.yaml -s "$out/scene" -o "$out/4dsg" --force
 $prism query "$out/4dsg" --coordinate 85 -o "$out/4dsg/query-85keV.npy"
 $prism report "$out/fdk" "$out/sart" "$out/4dsg"
 echo "4D-SG at 85 keV (never observed): $out/4dsg/query-85keV.npy"

@@ -3,38 +3,11 @@
 
 mod common;
 
-use common::prism;
-use std::path::Path;
-
-const SCENE: &str = r#"
-name: tiny-recon
-geometry:
-  beam: cone
-  dso: 1000.0
-  dsd: 1500.0
-  detector: { rows: 32, cols: 32, size_mm: [512.0, 512.0] }
-  volume: { n: 24, size_mm: 256.0 }
-  views: 24
-  test_views: 2
-object:
-  phantom: { radius_mm: 110.0 }
-channels:
-  - { kind: mono, kev: 50 }
-  - { kind: mono, kev: 90 }
-"#;
-
-fn path(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
+use common::{path, prism, simulated};
 
 #[test]
 fn recon_writes_volumes_config_and_metrics() {
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("scene.yaml");
-    std::fs::write(&cfg, SCENE).unwrap();
-    let scene = dir.path().join("scene");
-    let (ok, t) = prism(&["simulate", path(&cfg), "-o", path(&scene)]);
-    assert!(ok, "{t}");
+    let (dir, scene) = simulated("tiny-recon", 24, 24, 32, &[50, 90]);
     for (method, extra) in [
         ("fdk", ""),
         ("sart", "iterations: 2\n"),
@@ -72,15 +45,32 @@ fn recon_writes_volumes_config_and_metrics() {
         }
         assert!(m["mean"]["psnr"].as_f64().is_some() && m["mean"]["ssim"].as_f64().is_some());
     }
+    // A used run directory is refused without --force and replaced with it; a file the run
+    // did not write survives.
+    let run = dir.path().join("run-fdk");
+    std::fs::write(run.join("notes.txt"), "mine").unwrap();
+    let rc = dir.path().join("fdk.yaml");
+    let (ok, t) = prism(&["recon", path(&rc), "-s", path(&scene), "-o", path(&run)]);
+    assert!(
+        !ok && t.contains("--force") && t.contains("not empty"),
+        "{t}"
+    );
+    let (ok, t) = prism(&[
+        "recon",
+        path(&rc),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&run),
+        "--force",
+    ]);
+    assert!(ok, "{t}");
+    assert!(run.join("notes.txt").is_file() && run.join("run.json").is_file());
 }
 
 #[test]
 fn recon_bad_input_names_the_field() {
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("scene.yaml");
-    std::fs::write(&cfg, SCENE).unwrap();
-    let scene = dir.path().join("scene");
-    assert!(prism(&["simulate", path(&cfg), "-o", path(&scene)]).0);
+    let (dir, scene) = simulated("tiny-recon", 24, 24, 32, &[50, 90]);
     for (body, field) in [
         ("method: sart\niterations: 0\n", "iterations"),
         ("method: sart\nlambda: -1\n", "lambda"),
@@ -100,32 +90,9 @@ fn recon_bad_input_names_the_field() {
     }
 }
 
-const SPECTRAL_SCENE: &str = r#"
-name: tiny-spectral
-geometry:
-  beam: cone
-  dso: 1000.0
-  dsd: 1500.0
-  detector: { rows: 32, cols: 32, size_mm: [512.0, 512.0] }
-  volume: { n: 24, size_mm: 256.0 }
-  views: 16
-  test_views: 2
-object:
-  phantom: { radius_mm: 110.0 }
-channels:
-  - { kind: mono, kev: 50 }
-  - { kind: mono, kev: 70 }
-  - { kind: mono, kev: 90 }
-"#;
-
-/// A temporary directory holding the simulated [`SPECTRAL_SCENE`] (in `<dir>/scene`).
+/// A temporary directory holding a simulated three-channel scene (in `<dir>/scene`).
 fn spectral_scene() -> (tempfile::TempDir, std::path::PathBuf) {
-    let dir = tempfile::tempdir().unwrap();
-    let cfg = dir.path().join("scene.yaml");
-    std::fs::write(&cfg, SPECTRAL_SCENE).unwrap();
-    let scene = dir.path().join("scene");
-    assert!(prism(&["simulate", path(&cfg), "-o", path(&scene)]).0);
-    (dir, scene)
+    simulated("tiny-spectral", 16, 24, 32, &[50, 70, 90])
 }
 
 #[test]

@@ -6,23 +6,15 @@ mod common;
 use common::prism;
 use std::path::Path;
 
-const TINY: &str = r#"
-name: tiny-cli
-seed: 1
-geometry:
-  beam: cone
-  dso: 1000.0
-  dsd: 1500.0
-  detector: { rows: 24, cols: 32, size_mm: [512.0, 384.0] }
-  volume: { n: 16, size_mm: 256.0 }
-  views: 5
-  test_views: 2
-object:
-  phantom: { radius_mm: 110.0 }
-channels:
-  - { kind: mono, kev: 40 }
-  - { kind: mono, kev: 100 }
-"#;
+/// A two-channel scene config whose detector is not square (24 rows × 32 cols).
+fn tiny() -> String {
+    common::phantom_config("tiny-cli", 5, 16, 32, &[40, 100])
+        .replace(
+            "rows: 32, cols: 32, size_mm: [512.0, 512.0]",
+            "rows: 24, cols: 32, size_mm: [512.0, 384.0]",
+        )
+        .replace("name: tiny-cli\n", "name: tiny-cli\nseed: 1\n")
+}
 
 fn write(dir: &Path, name: &str, body: &str) -> String {
     let p = dir.join(name);
@@ -33,7 +25,7 @@ fn write(dir: &Path, name: &str, body: &str) -> String {
 #[test]
 fn simulate_then_info() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = write(dir.path(), "tiny.yaml", TINY);
+    let cfg = write(dir.path(), "tiny.yaml", &tiny());
     let out = dir.path().join("scene");
     let (ok, t) = prism(&["simulate", &cfg, "-o", out.to_str().unwrap()]);
     assert!(ok, "{t}");
@@ -66,14 +58,17 @@ fn bad_input_fails_cleanly_and_names_the_field() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("scene");
     let cases = [
-        (TINY.replace("dso: 1000.0", "dso: -1000.0"), "geometry.dso"),
-        (TINY.replace("kev: 100", "kev: 400"), "channels[1].kev"),
         (
-            TINY.replace("kind: mono, kev: 40", "kind: laser, kev: 40"),
+            tiny().replace("dso: 1000.0", "dso: -1000.0"),
+            "geometry.dso",
+        ),
+        (tiny().replace("kev: 100", "kev: 400"), "channels[1].kev"),
+        (
+            tiny().replace("kind: mono, kev: 40", "kind: laser, kev: 40"),
             "channels",
         ),
         (
-            TINY.replace("rows: 24", "rows: 0"),
+            tiny().replace("rows: 24", "rows: 0"),
             "geometry.detector.rows",
         ),
     ];

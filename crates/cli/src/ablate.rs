@@ -2,12 +2,11 @@
 //! ablations from one shared stage 1 (see `prism_recon::pipeline::ablation`).
 
 use crate::progress::Bars;
-use crate::recon::{DeviceArg, OutArgs};
+use crate::recon::{GaussianArgs, OutArgs};
 use anyhow::bail;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
 use prism_recon::gaussian::GaussianMethod;
-use prism_recon::pipeline::RunOptions;
 use prism_recon::pipeline::ablation::{Study, ablate, markdown};
 use std::path::PathBuf;
 
@@ -33,19 +32,15 @@ pub struct Args {
     // variant, `ablation.json` and `ablation.md`.
     #[command(flatten)]
     out: OutArgs,
-    /// Compute device (overrides the config's `device`): `cpu`, or `wgpu` in a prism built with
-    /// `--features wgpu`.
-    #[arg(long = "device")]
-    device: Option<DeviceArg>,
-    /// Skip stage 1 and start every variant from this stage-1 checkpoint
-    /// (`geometry.safetensors`, or a run directory holding one, e.g. a `4dsg` recon run or an
-    /// earlier ablation's `geometry/`) of the same scene and stage-1 settings.
-    #[arg(long = "from-geometry", value_name = "RUN_DIR|FILE")]
-    from_geometry: Option<PathBuf>,
+    #[command(flatten)]
+    gaussian: GaussianArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut config = match MethodConfig::load(&args.config)? {
+    let mut config = MethodConfig::load(&args.config)?;
+    let bars = Bars::new();
+    let options = args.gaussian.options(&mut config, &bars)?;
+    let base = match &config {
         MethodConfig::Gaussian(c) if c.method == GaussianMethod::FourDsg => c,
         _ => bail!(
             "{}: field `method`: ablations vary stage 2 and need `method: 4dsg`",
@@ -57,16 +52,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         StudyArg::Freeze => Study::Freeze,
         StudyArg::CurveModel => Study::CurveModel,
     };
-    if let Some(d) = args.device {
-        config.device = d.choice();
-    }
-    let bars = Bars::new();
-    let options = RunOptions {
-        device: config.device.device()?,
-        from_geometry: args.from_geometry.as_deref(),
-        observer: &bars,
-    };
-    let (dir, report) = ablate(&config, study, &scene, args.out.run_dir()?, &options)?;
+    let (dir, report) = ablate(base, study, &scene, args.out.run_dir()?, &options)?;
     bars.finish();
     print!("{}", markdown(&report));
     eprintln!("→ {}", dir.join("ablation.json").display());

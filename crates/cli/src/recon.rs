@@ -18,15 +18,43 @@ pub struct ReconArgs {
     scene: PathBuf,
     #[command(flatten)]
     out: OutArgs,
+    #[command(flatten)]
+    gaussian: GaussianArgs,
+}
+
+/// Where a Gaussian method runs and what it starts from.
+#[derive(clap::Args)]
+pub struct GaussianArgs {
     /// Compute device of a Gaussian method (overrides the config's `device`): `cpu`, or `wgpu`
     /// in a prism built with `--features wgpu` (a GPU, or Mesa's lavapipe without one).
     #[arg(long = "device")]
-    device: Option<DeviceArg>,
+    pub device: Option<DeviceArg>,
     /// `4dsg` / `4dsg-stage1` only: skip stage 1 and continue from its checkpoint
-    /// (`geometry.safetensors`, or a run directory holding one) written by an earlier run with the
-    /// same scene and stage-1 settings; the result is that of an uninterrupted run.
+    /// (`geometry.safetensors`, or a run directory holding one, e.g. a `4dsg` run or an
+    /// ablation's `geometry/`) written with the same scene and stage-1 settings; the result is
+    /// that of an uninterrupted run.
     #[arg(long = "from-geometry", value_name = "RUN_DIR|FILE")]
-    from_geometry: Option<PathBuf>,
+    pub from_geometry: Option<PathBuf>,
+}
+
+impl GaussianArgs {
+    /// Run options for `config` (its device overridden by `--device`), reporting to `observer`.
+    pub fn options<'a>(
+        &'a self,
+        config: &mut MethodConfig,
+        observer: &'a Bars,
+    ) -> anyhow::Result<RunOptions<'a>> {
+        if let Some(d) = self.device {
+            config.set_device(d.choice());
+        }
+        let options = RunOptions {
+            device: config.device().device()?,
+            from_geometry: self.from_geometry.as_deref(),
+            observer,
+        };
+        options.check(config)?;
+        Ok(options)
+    }
 }
 
 /// Where a run is published.
@@ -66,17 +94,9 @@ impl DeviceArg {
 
 pub fn run_cmd(args: ReconArgs) -> anyhow::Result<()> {
     let mut config = MethodConfig::load(&args.config)?;
-    if let Some(d) = args.device {
-        config.set_device(d.choice());
-    }
     let scene = Scene::load(&args.scene)?;
     let bars = Bars::new();
-    let options = RunOptions {
-        device: config.device().device()?,
-        from_geometry: args.from_geometry.as_deref(),
-        observer: &bars,
-    };
-    options.check(&config)?;
+    let options = args.gaussian.options(&mut config, &bars)?;
     let outcome = run(&config, &scene, args.out.run_dir()?, &options)?;
     bars.finish();
     match outcome.metrics {

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-/// Result alias used throughout `prism-core`.
+/// Result alias used throughout `prism-domain`.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 #[derive(Debug, thiserror::Error)]

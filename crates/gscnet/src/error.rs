@@ -1,6 +1,6 @@
-//! The crate's error type. It mirrors `prism_core::Error::Invalid` (a field path and a message)
+//! The crate's error type. It mirrors `prism_domain::Error::Invalid` (a field path and a message)
 //! so callers can convert without losing which input was wrong; this crate is a leaf and cannot
-//! depend on `prism-core`.
+//! depend on `prism-domain`.
 
 /// Result alias used throughout `prism-gscnet`.
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -21,6 +21,35 @@ pub fn force_baseline(on: bool) {
     FORCE_BASELINE.store(on, Ordering::Relaxed);
 }
 
+/// `a·b + c` with the rounding of a kernel variant: [`Separate`] rounds twice (plain `*`, `+`;
+/// the baseline build), [`Fused`] once (`f32::mul_add`; only for code compiled with FMA, where it
+/// is one instruction; elsewhere it is a slow libm call).
+pub trait MulAdd: Copy {
+    fn mul_add(a: f32, b: f32, c: f32) -> f32;
+}
+
+/// Unfused multiply-add (two roundings), for the baseline build.
+#[derive(Clone, Copy, Debug)]
+pub struct Separate;
+
+/// Fused multiply-add (one rounding), for code compiled with `target_feature = "fma"`.
+#[derive(Clone, Copy, Debug)]
+pub struct Fused;
+
+impl MulAdd for Separate {
+    #[inline(always)]
+    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+        a * b + c
+    }
+}
+
+impl MulAdd for Fused {
+    #[inline(always)]
+    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
+        a.mul_add(b, c)
+    }
+}
+
 fn detected() -> bool {
     #[cfg(target_arch = "x86_64")]
     {

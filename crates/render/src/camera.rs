@@ -1,6 +1,6 @@
 //! The plain-number camera the render ops consume.
 //!
-//! `prism-core::geometry` builds one per view; render never parses a scene. The convention is the
+//! `prism_domain::geometry` builds one per view; render never parses a scene. The convention is the
 //! project's single geometry convention, written once in `docs/geometry.md`:
 //!
 //! * camera axes (rows of [`Camera::rotation`], in world coordinates): `x_c` along detector columns

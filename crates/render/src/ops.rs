@@ -129,20 +129,14 @@ mod fusion_shapes {
     use super::*;
     use burn::tensor::Shape;
 
-    /// `[V, K, width]` of the backend's prepared records (the widths of [`crate::cube`], which
-    /// `Fusion` wraps).
+    /// `[V, K, width]` of the prepared records of the backend `Fusion` wraps (the Cube
+    /// backend: feature `fusion` implies `wgpu`).
     #[allow(dead_code)]
     pub fn prepared(means: &Shape, cameras: &[Camera], options: &ProjectOptions) -> Shape {
         #[cfg(feature = "wgpu")]
-        let width = match options.mode {
-            crate::options::ProjectionMode::Exact => crate::cube::math::EX_WIDTH,
-            crate::options::ProjectionMode::Affine => crate::cpu::PREPARED_WIDTH,
-        };
+        let width = crate::cube::prepared_width(options.mode);
         #[cfg(not(feature = "wgpu"))]
-        let width = {
-            let _ = options;
-            crate::cpu::PREPARED_WIDTH
-        };
+        let width = crate::cpu::prepared_width(options.mode);
         Shape::from(vec![cameras.len(), means[0], width])
     }
 

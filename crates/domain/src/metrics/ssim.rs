@@ -11,7 +11,7 @@
 //!   every edge, where the window never leaves the image.
 //!
 //! Both are verified against scikit-image / SciPy numbers stored in
-//! `crates/core/tests/fixtures/ssim/` with the script that produced them.
+//! `crates/domain/tests/fixtures/ssim/` with the script that produced them.
 //!
 //! 3-D SSIM ([`ssim_3d`]) follows R²-Gaussian: 2-D SSIM on every slice along each of the three
 //! axes, skipping slices where the reference is all zero, mean per axis, then the mean of the axes.

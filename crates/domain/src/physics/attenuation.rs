@@ -1,6 +1,6 @@
 //! Mass and linear attenuation coefficients from the embedded NIST/xraydb table.
 //!
-//! The table (`crates/core/data/nist_mu_over_rho.csv`) gives μ/ρ in cm²/g for every [`Material`]
+//! The table (`crates/domain/data/nist_mu_over_rho.csv`) gives μ/ρ in cm²/g for every [`Material`]
 //! on a 0.5 keV grid from 10 to 150 keV. Between grid points we interpolate **log–log**: on each
 //! interval μ/ρ follows the power law through its two end points, `μ/ρ(E) = μ_i·(E/E_i)^k` with
 //! `k = ln(μ_{i+1}/μ_i) / ln(E_{i+1}/E_i)`. The value is exact at grid points.

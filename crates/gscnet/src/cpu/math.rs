@@ -6,33 +6,7 @@
 //! [`Fused`] (one rounding) inside `target_feature = "fma"` code, where `f32::mul_add` becomes a
 //! single FMA instruction. The two variants differ in the last bits only.
 
-/// `a·b + c` with the rounding of the build variant.
-pub(crate) trait MulAdd {
-    fn mul_add(a: f32, b: f32, c: f32) -> f32;
-}
-
-/// Unfused multiply-add (two roundings), for the baseline build.
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Separate;
-
-/// Fused multiply-add (one rounding), only for code compiled with `target_feature = "fma"`
-/// (elsewhere `f32::mul_add` is a slow libm call).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Fused;
-
-impl MulAdd for Separate {
-    #[inline(always)]
-    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
-        a * b + c
-    }
-}
-
-impl MulAdd for Fused {
-    #[inline(always)]
-    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
-        a.mul_add(b, c)
-    }
-}
+pub(crate) use prism_kernel::simd::{Fused, MulAdd, Separate};
 
 /// Below this argument [`exp`] returns 0 (e^−87 ≈ 1.6e-38, the edge of the normal range).
 const EXP_LO: f32 = -87.0;

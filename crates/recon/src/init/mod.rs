@@ -8,8 +8,8 @@
 //! FDK volume (one voxelization; the voxelization is linear in the densities).
 
 use crate::classic::{Window, fdk};
-use crate::gaussian::host::{HostGaussians, ScaleBounds, inverse_softplus};
 use crate::gaussian::config::{DensityRescale, InitConfig, RescaleRule};
+use crate::gaussian::host::{HostGaussians, ScaleBounds, inverse_softplus};
 use crate::gaussian::{GaussianConfig, GaussianModel, World};
 use crate::{Error, Result};
 use burn::tensor::Device;

@@ -4,12 +4,12 @@
 use super::tests::scene;
 use super::{RunDir, RunOptions, run};
 use crate::evaluate::Metrics;
+use crate::gaussian::config::{DensifyConfig, InitConfig};
 use crate::gaussian::host::{self, HostGaussians, ScaleBounds, inverse_softplus};
 use crate::gaussian::io::{ModelInfo, load_model, save_model, write_ply};
 use crate::gaussian::{
     GaussianConfig, GaussianMethod, GaussianModel, Learnable, ProjectionConfig, World, cpu_device,
 };
-use crate::gaussian::config::{DensifyConfig, InitConfig};
 use crate::init::from_fdk;
 use crate::query;
 use crate::train::densify::densify_and_prune;

@@ -37,6 +37,6 @@ pub fn run(
 }
 
 #[cfg(test)]
-pub(crate) mod tests;
-#[cfg(test)]
 mod gaussian_tests;
+#[cfg(test)]
+pub(crate) mod tests;

@@ -36,4 +36,3 @@ impl CurveFit {
         Ok(u + du)
     }
 }
-

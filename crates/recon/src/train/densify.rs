@@ -3,6 +3,7 @@
 
 use crate::gaussian::config::DensifyConfig;
 use crate::gaussian::host::{HostGaussians, ScaleBounds, inverse_softplus, softplus};
+use prism_render::gaussian_math::quat_to_rotation;
 use rand::Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
@@ -117,36 +118,16 @@ pub fn densify_and_prune(
     (pruned, src, counts)
 }
 
-/// Rotation matrix of a (not necessarily unit) quaternion `w, x, y, z`.
+/// Rotation matrix of a (not necessarily unit) quaternion `w, x, y, z` (the identity when it
+/// is zero or not finite).
 fn rotation_matrix(q: &[f32]) -> [[f64; 3]; 3] {
     let n = q.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
-    let (w, x, y, z) = if n > 0.0 && n.is_finite() {
-        (
-            q[0] as f64 / n,
-            q[1] as f64 / n,
-            q[2] as f64 / n,
-            q[3] as f64 / n,
-        )
+    let unit = if n > 0.0 && n.is_finite() {
+        [0, 1, 2, 3].map(|c| q[c] as f64 / n)
     } else {
-        (1.0, 0.0, 0.0, 0.0)
+        [1.0, 0.0, 0.0, 0.0]
     };
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
+    quat_to_rotation(unit)
 }
 
 #[cfg(test)]

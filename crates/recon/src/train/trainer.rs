@@ -10,11 +10,11 @@
 //! driver's business ([`super::train`]); the trainer only does it.
 
 use super::Timing;
+use super::curve::CurveFit;
 use super::data::Supervision;
 use super::densify::{DensifyCounts, densify_and_prune};
 use super::log::LossTerms;
 use super::loss::{SsimWindow, l1, total_variation};
-use super::curve::CurveFit;
 use super::settings::Stage;
 use crate::gaussian::GaussianModel;
 use crate::gaussian::config::Rates;

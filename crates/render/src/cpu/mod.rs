@@ -19,33 +19,7 @@ pub use voxelize::{VoxelizeGrads, voxelize_backward, voxelize_forward};
 
 use crate::gaussian_math::GaussianGeom;
 
-/// `a·b + c` for the SIMD kernels: [`Separate`] rounds twice (plain `*`, `+`; any target),
-/// [`Fused`] once (`mul_add`; only for code compiled with FMA, else it is a slow libm call).
-pub trait MulAdd: Copy {
-    fn mul_add(a: f32, b: f32, c: f32) -> f32;
-}
-
-/// Unfused multiply-add (two roundings), for the baseline build.
-#[derive(Clone, Copy, Debug)]
-pub struct Separate;
-
-/// Fused multiply-add (one rounding), for code compiled with `target_feature = "fma"`.
-#[derive(Clone, Copy, Debug)]
-pub struct Fused;
-
-impl MulAdd for Separate {
-    #[inline(always)]
-    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
-        a * b + c
-    }
-}
-
-impl MulAdd for Fused {
-    #[inline(always)]
-    fn mul_add(a: f32, b: f32, c: f32) -> f32 {
-        a.mul_add(b, c)
-    }
-}
+pub use prism_kernel::simd::{Fused, MulAdd, Separate};
 
 /// `exp(x)` for `x ≤ 0` in f32, branch-free and conversion-free so pixel rows vectorise:
 /// `2ⁿ · e^y` with `n = round(x / ln 2)`, `|y| ≤ ln2 / 2` and a degree-6 Taylor polynomial

@@ -15,7 +15,6 @@ use burn_cubecl::{CubeBackend, cubecl};
 use super::STEP;
 
 use crate::camera::Camera;
-use crate::cpu::PREPARED_WIDTH;
 use crate::cpu::tests::{Params, cone, parallel};
 use crate::cpu::{project_backward, project_forward, voxelize_backward, voxelize_forward};
 use crate::ops::tests::{tensors as tracked, to_vec, weights};
@@ -400,18 +399,19 @@ fn step_skipping_keeps_the_outputs() {
 
 #[test]
 fn step_bounds_are_the_union_of_live_boxes() {
-    // 2500 records of 10 floats with the box [x0, x1, y0, y1] at 6..10; every third is culled
-    // (an empty box), and the last step holds only culled records.
+    // 2500 affine records with the box [x0, x1, y0, y1]; every third is culled (an empty box),
+    // and the last step holds only culled records.
     let (k, sets) = (2500usize, 2usize);
-    let mut rec = vec![0.0f32; sets * k * PREPARED_WIDTH];
+    let (width, bx) = (super::project::AFFINE_WIDTH, super::project::AFFINE_BOX);
+    let mut rec = vec![0.0f32; sets * k * width];
     for set in 0..sets {
         for j in 0..k {
-            let o = (set * k + j) * PREPARED_WIDTH;
+            let o = (set * k + j) * width + bx;
             let live = j % 3 != 0 && j < 2 * STEP;
             let x0 = ((j * 7 + set * 3) % 50) as f32;
             let y0 = ((j * 13) % 40) as f32;
             let (w, h) = if live { (3.0, 2.0) } else { (0.0, 0.0) };
-            rec[o + 6..o + 10].copy_from_slice(&[x0, x0 + w, y0, y0 + h]);
+            rec[o..o + 4].copy_from_slice(&[x0, x0 + w, y0, y0 + h]);
         }
     }
     let dev = gpu().inner();
@@ -419,7 +419,7 @@ fn step_bounds_are_the_union_of_live_boxes() {
         panic!("the wgpu device is a CubeCL device");
     };
     let records = CubeBackend::float_from_data(TensorData::new(rec.clone(), [rec.len()]), device);
-    let bounds = super::step_bounds(&records, k, sets, super::PROJECT_BOXES);
+    let bounds = super::culling::step_bounds(&records, k, sets, super::culling::AFFINE_BOXES);
     let got = cubecl::future::reader::read_sync(CubeBackend::float_into_data(bounds))
         .expect("read back")
         .try_into_vec::<f32>()
@@ -428,10 +428,10 @@ fn step_bounds_are_the_union_of_live_boxes() {
     assert_eq!(got.len(), sets * steps * 4);
     for set in 0..sets {
         for step in 0..steps {
-            let e = super::EMPTY_LO;
+            let e = super::culling::EMPTY_LO;
             let mut want = [e, -e, e, -e];
             for j in step * STEP..((step + 1) * STEP).min(k) {
-                let o = (set * k + j) * PREPARED_WIDTH + 6;
+                let o = (set * k + j) * width + bx;
                 if rec[o] < rec[o + 1] && rec[o + 2] < rec[o + 3] {
                     want = [
                         want[0].min(rec[o]),

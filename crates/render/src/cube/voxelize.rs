@@ -1,29 +1,122 @@
 //! Voxelization kernels, organised like the projection ones ([`super::project`]):
-//! per-Gaussian preparation ([`prepare_kernel`], records of [`VOX_WIDTH`] floats), a brick
-//! forward that culls and compacts Gaussians per 8×8×4 brick ([`forward_kernel`]) and a
-//! per-Gaussian gather backward ([`backward_kernel`]).
-//!
-//! The grid is passed as `[nx, ny, nz, dx, dy, dz, ox, oy, oz]` (f32): voxel `(ix, iy, iz)` has
-//! its centre at `o + (i + ½ − n/2)·d` per axis, as [`crate::VoxelGrid`].
+//! per-Gaussian preparation ([`prepare_kernel`], one [`VoxelRecord`] each), a brick forward that
+//! culls and compacts Gaussians per 8×8×4 brick ([`forward_kernel`]) and a per-Gaussian gather
+//! backward ([`backward_kernel`]).
 
 use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
-use super::math::{ST_LEN, ST_ROT, ST_SCALE, factors, finite, quat_backward, variance};
+use super::math::{factors, quat_backward, variances};
+use super::types::{GeomGrad, Mat3, Params, Vec3, cell_span, densities_finite, finite};
 use super::{CHUNK, PER_UNIT, STEP, stage_chunk};
 
-/// Width of one Gaussian's voxel record: `[mean (3), scaled axes w_j = r_j / s_j (3 × 3),
-/// lo (3), hi (3), 0, 0]` (zeros if culled).
-pub const VOX_WIDTH: usize = 20;
 /// Brick edge (units per cube: `BX · BY · BZ` = [`CHUNK`]).
 pub const BX: u32 = 8;
 pub const BY: u32 = 8;
 pub const BZ: u32 = 4;
 
-/// Centre of voxel `i` along `axis` of `grid`.
+/// Floats per grid description (`[nx, ny, nz, dx, dy, dz, ox, oy, oz]`; [`super::grid_record`]
+/// writes them in the order [`Grid::load`] reads).
+pub const GRID_WIDTH: usize = 9;
+
+/// A voxel grid ([`crate::VoxelGrid`]): voxel `(ix, iy, iz)` has its centre at
+/// `o + (i + ½ − n/2)·d` per axis.
+#[derive(CubeType, CubeTypeMut, Clone, Copy)]
+#[expand(derive(Clone, Copy))]
+pub struct Grid {
+    pub n: Vec3,
+    pub d: Vec3,
+    pub o: Vec3,
+}
+
 #[cube]
-fn centre(grid: &Tensor<f32>, axis: usize, i: u32) -> f32 {
-    grid[6 + axis] + (f32::cast_from(i) + 0.5f32 - grid[axis] * 0.5f32) * grid[3 + axis]
+impl Grid {
+    pub fn load(t: &Tensor<f32>) -> Grid {
+        Grid {
+            n: Vec3::load(t, 0),
+            d: Vec3::load(t, 3),
+            o: Vec3::load(t, 6),
+        }
+    }
+
+    /// The centre of voxel `(x, y, z)`.
+    pub fn centre(self, x: u32, y: u32, z: u32) -> Vec3 {
+        let i = Vec3::new(f32::cast_from(x), f32::cast_from(y), f32::cast_from(z));
+        self.o.add(
+            i.add(Vec3::new(0.5f32, 0.5f32, 0.5f32))
+                .sub(self.n.scale(0.5f32))
+                .mul(self.d),
+        )
+    }
+
+    /// The (fractional) voxel index of a point: `(x − o)/d + n/2 − ½`.
+    pub fn index(self, p: Vec3) -> Vec3 {
+        let r = p.sub(self.o);
+        Vec3::new(r.x / self.d.x, r.y / self.d.y, r.z / self.d.z)
+            .add(self.n.scale(0.5f32))
+            .sub(Vec3::new(0.5f32, 0.5f32, 0.5f32))
+    }
+}
+
+/// Floats per [`VoxelRecord`] (two of padding).
+pub const VOXEL_WIDTH: usize = 20;
+/// Where a [`VoxelRecord`] keeps the low and high ends of its voxel box.
+pub const VOXEL_LO: usize = 12;
+pub const VOXEL_HI: usize = 15;
+
+/// A Gaussian prepared for voxelization: its mean, the scaled axes `w_j = r_j / s_j` (rows; the
+/// value at `x` is `ρ · exp(−½ Σ_j (w_j · (x − mean))²)`), and its voxel box `[lo, hi)`.
+#[derive(CubeType, CubeTypeMut, Clone, Copy)]
+#[expand(derive(Clone, Copy))]
+pub struct VoxelRecord {
+    pub mean: Vec3,
+    pub w: Mat3,
+    pub lo: Vec3,
+    pub hi: Vec3,
+}
+
+#[cube]
+impl VoxelRecord {
+    pub fn culled() -> VoxelRecord {
+        VoxelRecord {
+            mean: Vec3::zero(),
+            w: Mat3::zero(),
+            lo: Vec3::zero(),
+            hi: Vec3::zero(),
+        }
+    }
+
+    pub fn load(t: &Tensor<f32>, o: usize) -> VoxelRecord {
+        VoxelRecord {
+            mean: Vec3::load(t, o),
+            w: Mat3::load(t, o + 3),
+            lo: Vec3::load(t, o + VOXEL_LO),
+            hi: Vec3::load(t, o + VOXEL_HI),
+        }
+    }
+
+    pub fn store(self, t: &mut Tensor<f32>, o: usize) {
+        self.mean.store(t, o);
+        self.w.store(t, o + 3);
+        self.lo.store(t, o + VOXEL_LO);
+        self.hi.store(t, o + VOXEL_HI);
+        t[o + 18] = 0.0f32;
+        t[o + 19] = 0.0f32;
+    }
+}
+
+/// Whether the box `[lo, hi)` is non-empty and overlaps `[blo, bhi)` on every axis.
+#[cube]
+fn boxes_meet(lo: Vec3, hi: Vec3, blo: Vec3, bhi: Vec3) -> bool {
+    lo.x < hi.x
+        && lo.y < hi.y
+        && lo.z < hi.z
+        && lo.x < bhi.x
+        && hi.x > blo.x
+        && lo.y < bhi.y
+        && hi.y > blo.y
+        && lo.z < bhi.z
+        && hi.z > blo.z
 }
 
 #[cube(launch)]
@@ -42,72 +135,44 @@ pub fn prepare_kernel(
     if i >= k as usize {
         terminate!();
     }
-    let o = i * VOX_WIDTH;
-    for f in 0..VOX_WIDTH {
-        out[o + f] = 0.0f32;
-    }
-    let mut ok = true;
-    for c in 0..m {
-        if !finite(densities[i * m + c]) {
-            ok = false;
-        }
-    }
-    let mut st = Array::<f32>::new(ST_LEN);
-    if ok {
-        ok = factors(means, scales, rotations, i, &mut st);
-    }
-    if ok {
-        let mut span = Array::<f32>::new(6usize);
-        let mut good = true;
-        for a in 0..3usize {
-            let half = cutoff * f32::sqrt(variance(&st, a));
-            if !finite(half) {
-                good = false;
-            }
-            let mean = means[3 * i + a];
-            let n = grid[a];
-            // Voxel index of a coordinate: (x − o)/d + n/2 − ½.
-            let first = (mean - half - grid[6 + a]) / grid[3 + a] + n * 0.5f32 - 0.5f32;
-            let last = (mean + half - grid[6 + a]) / grid[3 + a] + n * 0.5f32 - 0.5f32;
-            crate::cube::math::cell_span(first, last, u32::cast_from(n), &mut span, 2 * a);
-            if !(span[2 * a] < span[2 * a + 1]) {
-                good = false;
-            }
-        }
+    let mut rec = VoxelRecord::culled();
+    let p = Params::load(means, scales, rotations, i);
+    let f = factors(p);
+    if densities_finite(densities, i, m) && f.ok {
+        let grid = Grid::load(grid);
+        let v = variances(f);
+        let half = Vec3::new(f32::sqrt(v.x), f32::sqrt(v.y), f32::sqrt(v.z)).scale(cutoff);
+        let first = grid.index(p.mean.sub(half));
+        let last = grid.index(p.mean.add(half));
+        let (lx, hx) = cell_span(first.x, last.x, u32::cast_from(grid.n.x));
+        let (ly, hy) = cell_span(first.y, last.y, u32::cast_from(grid.n.y));
+        let (lz, hz) = cell_span(first.z, last.z, u32::cast_from(grid.n.z));
+        let lo = Vec3::new(lx, ly, lz);
+        let hi = Vec3::new(hx, hy, hz);
         // Scaled axes w_j = r_j / s_j (r_j the j-th column of R).
-        for j in 0..3usize {
-            let inv_s = 1.0f32 / st[ST_SCALE + j];
-            for a in 0..3usize {
-                let w = st[ST_ROT + 3 * a + j] * inv_s;
-                if !finite(w) {
-                    good = false;
-                }
-                out[o + 3 + 3 * j + a] = w;
-            }
-        }
-        if good {
-            for a in 0..3usize {
-                out[o + a] = means[3 * i + a];
-                out[o + 12 + a] = span[2 * a];
-                out[o + 15 + a] = span[2 * a + 1];
-            }
-        } else {
-            for f in 0..VOX_WIDTH {
-                out[o + f] = 0.0f32;
-            }
+        let w = Mat3 {
+            r0: f.rot.c0().scale(1.0f32 / f.scale.x),
+            r1: f.rot.c1().scale(1.0f32 / f.scale.y),
+            r2: f.rot.c2().scale(1.0f32 / f.scale.z),
+        };
+        if half.is_finite() && w.is_finite() && boxes_meet(lo, hi, lo, hi) {
+            rec = VoxelRecord {
+                mean: p.mean,
+                w,
+                lo,
+                hi,
+            };
         }
     }
+    rec.store(out, i * VOXEL_WIDTH);
 }
 
 /// `−½ q` of the offset `d` from a record's scaled axes `w` (`q = Σ_j (w_j · d)²`, a sum of
 /// squares: no cancellation however thin the Gaussian), or `+1` beyond the cut-off.
 #[cube]
-fn neg_half_q3(w: &Array<f32>, d0: f32, d1: f32, d2: f32, cut2: f32) -> f32 {
-    let mut qq = 0.0f32;
-    for j in 0..3usize {
-        let e = w[3 * j] * d0 + w[3 * j + 1] * d1 + w[3 * j + 2] * d2;
-        qq += e * e;
-    }
+fn neg_half_q3(w: Mat3, d: Vec3, cut2: f32) -> f32 {
+    let e = w.mul_vec(d);
+    let qq = e.dot(e);
     let mut r = 1.0f32;
     if qq <= cut2 {
         r = -0.5f32 * qq;
@@ -126,62 +191,50 @@ pub fn forward_kernel(
     cut2: f32,
     #[comptime] m: usize,
 ) {
+    let grid = Grid::load(grid);
     let t = ((UNIT_POS_Z * BY + UNIT_POS_Y) * BX + UNIT_POS_X) as usize;
-    let nx = u32::cast_from(grid[0]);
-    let ny = u32::cast_from(grid[1]);
-    let nz = u32::cast_from(grid[2]);
-    let mut lo = Array::<f32>::new(3usize);
-    let mut hi = Array::<f32>::new(3usize);
-    lo[0] = f32::cast_from(CUBE_POS_X * BX);
-    lo[1] = f32::cast_from(CUBE_POS_Y * BY);
-    lo[2] = f32::cast_from(CUBE_POS_Z * BZ);
-    hi[0] = f32::min(lo[0] + f32::cast_from(BX), grid[0]);
-    hi[1] = f32::min(lo[1] + f32::cast_from(BY), grid[1]);
-    hi[2] = f32::min(lo[2] + f32::cast_from(BZ), grid[2]);
+    let nx = u32::cast_from(grid.n.x);
+    let ny = u32::cast_from(grid.n.y);
+    let nz = u32::cast_from(grid.n.z);
+    let blo = Vec3::new(
+        f32::cast_from(CUBE_POS_X * BX),
+        f32::cast_from(CUBE_POS_Y * BY),
+        f32::cast_from(CUBE_POS_Z * BZ),
+    );
+    let bhi = Vec3::new(
+        f32::min(blo.x + f32::cast_from(BX), grid.n.x),
+        f32::min(blo.y + f32::cast_from(BY), grid.n.y),
+        f32::min(blo.z + f32::cast_from(BZ), grid.n.z),
+    );
     let ix = CUBE_POS_X * BX + UNIT_POS_X;
     let iy = CUBE_POS_Y * BY + UNIT_POS_Y;
     let iz = CUBE_POS_Z * BZ + UNIT_POS_Z;
-    let fx = f32::cast_from(ix);
-    let fy = f32::cast_from(iy);
-    let fz = f32::cast_from(iz);
-    let cx = centre(grid, 0, ix);
-    let cy = centre(grid, 1, iy);
-    let cz = centre(grid, 2, iz);
+    let voxel = Vec3::new(f32::cast_from(ix), f32::cast_from(iy), f32::cast_from(iz));
+    let centre = grid.centre(ix, iy, iz);
     let mut scan = Shared::<[u32]>::new_slice(2 * CHUNK);
     let mut ids = Shared::<[u32]>::new_slice(STEP);
     let mut acc = Array::<f32>::new(m);
     for c in 0..m {
         acc[c] = 0.0f32;
     }
-    let mut q = Array::<f32>::new(9usize);
     let kk = k as usize;
     let mut start = 0usize;
     while start < kk {
-        // The step's union box (super::step_bounds_kernel): skip the step, uniformly across the
-        // cube, if it misses the brick.
+        // The step's union box (super::step_bounds_kernel, `(lo, hi)` per axis): skip the step,
+        // uniformly across the cube, if it misses the brick.
         let b = (start / STEP) * 6;
-        let mut near = true;
-        for a in 0..3usize {
-            if !(bounds[b + 2 * a] < hi[a] && bounds[b + 2 * a + 1] > lo[a]) {
-                near = false;
-            }
-        }
-        if near {
+        let step_lo = Vec3::new(bounds[b], bounds[b + 2], bounds[b + 4]);
+        let step_hi = Vec3::new(bounds[b + 1], bounds[b + 3], bounds[b + 5]);
+        if boxes_meet(step_lo, step_hi, blo, bhi) {
             let first = start + t * PER_UNIT;
             let mut hits = 0u32;
             for i in 0..PER_UNIT {
                 let j = first + i;
                 if j < kk {
-                    let o = j * VOX_WIDTH;
-                    let mut hit = true;
-                    for a in 0..3usize {
-                        let l = prepared[o + 12 + a];
-                        let h = prepared[o + 15 + a];
-                        if !(l < h && l < hi[a] && h > lo[a]) {
-                            hit = false;
-                        }
-                    }
-                    if hit {
+                    let o = j * VOXEL_WIDTH;
+                    let lo = Vec3::load(prepared, o + VOXEL_LO);
+                    let hi = Vec3::load(prepared, o + VOXEL_HI);
+                    if boxes_meet(lo, hi, blo, bhi) {
                         hits |= 1u32 << i as u32;
                     }
                 }
@@ -189,26 +242,17 @@ pub fn forward_kernel(
             let n = stage_chunk(hits, first, t, &mut scan, &mut ids);
             for e in 0..n as usize {
                 let gi = ids[e] as usize;
-                let r = gi * VOX_WIDTH;
-                let inside = fx >= prepared[r + 12]
-                    && fx < prepared[r + 15]
-                    && fy >= prepared[r + 13]
-                    && fy < prepared[r + 16]
-                    && fz >= prepared[r + 14]
-                    && fz < prepared[r + 17];
+                let rec = VoxelRecord::load(prepared, gi * VOXEL_WIDTH);
+                let inside = voxel.x >= rec.lo.x
+                    && voxel.x < rec.hi.x
+                    && voxel.y >= rec.lo.y
+                    && voxel.y < rec.hi.y
+                    && voxel.z >= rec.lo.z
+                    && voxel.z < rec.hi.z;
                 // Only voxels inside the box evaluate: a warp (a SIMD group on lavapipe) whose
                 // voxels all miss skips the work.
                 if inside {
-                    for f in 0..9usize {
-                        q[f] = prepared[r + 3 + f];
-                    }
-                    let nhq = neg_half_q3(
-                        &q,
-                        cx - prepared[r],
-                        cy - prepared[r + 1],
-                        cz - prepared[r + 2],
-                        cut2,
-                    );
+                    let nhq = neg_half_q3(rec.w, centre.sub(rec.mean), cut2);
                     if nhq <= 0.0f32 {
                         let g = f32::exp(nhq);
                         for c in 0..m {
@@ -252,48 +296,37 @@ pub fn backward_kernel(
     if i >= k as usize {
         terminate!();
     }
-    let o = i * VOX_WIDTH;
-    let nx = u32::cast_from(grid[0]);
-    let ny = u32::cast_from(grid[1]);
-    let nz = u32::cast_from(grid[2]);
+    let grid = Grid::load(grid);
+    let rec = VoxelRecord::load(prepared, i * VOXEL_WIDTH);
+    let nx = u32::cast_from(grid.n.x);
+    let ny = u32::cast_from(grid.n.y);
+    let nz = u32::cast_from(grid.n.z);
     let vol = (nx * ny * nz) as usize;
     let mut sums = Array::<f32>::new(m);
     for c in 0..m {
         sums[c] = 0.0f32;
     }
-    // Moments in the Gaussian's frame, e_j = w_j · d (w = uG, u = Σ_c ρ_c ∂L/∂value_c):
-    // [Σ w e_j (3), Σ w e_j² (3), Σ w e_j d (3 × 3, row j)]. Sums of e_j² keep the thin axis of a
-    // needle or sheet accurate, where world moments d dᵀ contracted with Σ⁻¹ cancel in f32.
-    let mut mom = Array::<f32>::new(15usize);
-    for e in 0..15usize {
-        mom[e] = 0.0f32;
-    }
-    let mut q = Array::<f32>::new(9usize);
-    for f in 0..9usize {
-        q[f] = prepared[o + 3 + f];
-    }
-    let x0 = u32::cast_from(prepared[o + 12]);
-    let y0 = u32::cast_from(prepared[o + 13]);
-    let z0 = u32::cast_from(prepared[o + 14]);
-    let x1 = u32::min(u32::cast_from(prepared[o + 15]), nx);
-    let y1 = u32::min(u32::cast_from(prepared[o + 16]), ny);
-    let z1 = u32::min(u32::cast_from(prepared[o + 17]), nz);
-    let (mx, my, mz) = (prepared[o], prepared[o + 1], prepared[o + 2]);
-    let mut e = Array::<f32>::new(3usize);
+    // Moments in the Gaussian's frame, e_j = w_j · d (weight w = uG, u = Σ_c ρ_c ∂L/∂value_c):
+    // Σ w e_j, Σ w e_j², Σ w e_j d (row j). Sums of e_j² keep the thin axis of a needle or sheet
+    // accurate, where world moments d dᵀ contracted with Σ⁻¹ cancel in f32.
+    let mut m_e = Vec3::zero();
+    let mut m_ee = Vec3::zero();
+    let mut m_ed = Mat3::zero();
+    let x0 = u32::cast_from(rec.lo.x);
+    let y0 = u32::cast_from(rec.lo.y);
+    let z0 = u32::cast_from(rec.lo.z);
+    let x1 = u32::min(u32::cast_from(rec.hi.x), nx);
+    let y1 = u32::min(u32::cast_from(rec.hi.y), ny);
+    let z1 = u32::min(u32::cast_from(rec.hi.z), nz);
     let mut z = z0;
     while z < z1 {
-        let dz = centre(grid, 2, z) - mz;
         let mut y = y0;
         while y < y1 {
-            let dy = centre(grid, 1, y) - my;
             let mut x = x0;
             while x < x1 {
-                let dx = centre(grid, 0, x) - mx;
-                let mut qq = 0.0f32;
-                for j in 0..3usize {
-                    e[j] = q[3 * j] * dx + q[3 * j + 1] * dy + q[3 * j + 2] * dz;
-                    qq += e[j] * e[j];
-                }
+                let d = grid.centre(x, y, z).sub(rec.mean);
+                let e = rec.w.mul_vec(d);
+                let qq = e.dot(e);
                 if qq <= cut2 {
                     let g = f32::exp(-0.5f32 * qq);
                     let p = ((z * ny + y) * nx + x) as usize;
@@ -303,15 +336,10 @@ pub fn backward_kernel(
                         sums[c] += gc * g;
                         u += densities[i * m + c] * gc;
                     }
-                    let w = u * g;
-                    for j in 0..3usize {
-                        let we = w * e[j];
-                        mom[j] += we;
-                        mom[3 + j] += we * e[j];
-                        mom[6 + 3 * j] += we * dx;
-                        mom[6 + 3 * j + 1] += we * dy;
-                        mom[6 + 3 * j + 2] += we * dz;
-                    }
+                    let we = e.scale(u * g);
+                    m_e = m_e.add(we);
+                    m_ee = m_ee.add(we.mul(e));
+                    m_ed = m_ed.add(Mat3::outer(we, d));
                 }
                 x += 1;
             }
@@ -319,51 +347,39 @@ pub fn backward_kernel(
         }
         z += 1;
     }
-    let mut out = Array::<f32>::new(10usize);
-    for f in 0..10usize {
-        out[f] = 0.0f32;
-    }
-    let mut good = x0 < x1 && y0 < y1 && z0 < z1;
-    let mut st = Array::<f32>::new(ST_LEN);
-    if good {
-        good = factors(means, scales, rotations, i, &mut st);
-    }
+    let f = factors(Params::load(means, scales, rotations, i));
+    let mut good = x0 < x1 && y0 < y1 && z0 < z1 && f.ok;
+    let mut out = GeomGrad::zero();
     if good {
         // G = exp(−½ Σ_j e_j²), e_j = r_jᵀd / s_j:
         // ∂G/∂mean = G Σ_j e_j w_j, ∂G/∂s_j = G e_j² / s_j, ∂G/∂r_j = −G e_j d / s_j.
-        let mut g_rot = Array::<f32>::new(9usize);
-        for j in 0..3usize {
-            let s = st[ST_SCALE + j];
-            for a in 0..3usize {
-                out[a] += q[3 * j + a] * mom[j];
-                g_rot[3 * a + j] = -mom[6 + 3 * j + a] / s;
-            }
-            out[3 + j] = mom[3 + j] / s;
-        }
-        let mut g_quat = Array::<f32>::new(4usize);
-        quat_backward(&st, &g_rot, &mut g_quat);
-        for f in 0..4usize {
-            out[6 + f] = g_quat[f];
-        }
-        for f in 0..10usize {
-            if !finite(out[f]) {
-                good = false;
-            }
-        }
+        let inv_s = Vec3::new(1.0f32 / f.scale.x, 1.0f32 / f.scale.y, 1.0f32 / f.scale.z);
+        let g_axes = Mat3 {
+            r0: m_ed.r0.scale(-inv_s.x),
+            r1: m_ed.r1.scale(-inv_s.y),
+            r2: m_ed.r2.scale(-inv_s.z),
+        };
+        out = GeomGrad {
+            mean: rec.w.t_mul_vec(m_e),
+            scale: m_ee.mul(inv_s),
+            // Row j of `g_axes` is ∂L/∂r_j, the j-th column of R.
+            quat: quat_backward(f, g_axes.transpose()),
+        };
+        good = out.is_finite();
         for c in 0..m {
             if !finite(sums[c]) {
                 good = false;
             }
         }
     }
-    for a in 0..3usize {
-        g_means[3 * i + a] = select(good, out[a], 0.0f32);
-        g_scales[3 * i + a] = select(good, out[3 + a], 0.0f32);
+    if !good {
+        out = GeomGrad::zero();
+        for c in 0..m {
+            sums[c] = 0.0f32;
+        }
     }
-    for a in 0..4usize {
-        g_rotations[4 * i + a] = select(good, out[6 + a], 0.0f32);
-    }
+    out.store(g_means, g_scales, g_rotations, i);
     for c in 0..m {
-        g_densities[i * m + c] = select(good, sums[c], 0.0f32);
+        g_densities[i * m + c] = sums[c];
     }
 }

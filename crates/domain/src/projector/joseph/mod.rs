@@ -29,9 +29,9 @@
 mod sheet;
 mod walk;
 
-pub(crate) use walk::{MAGIC, floorish, from_yxz};
 use sheet::*;
 use walk::*;
+pub(crate) use walk::{MAGIC, floorish, from_yxz};
 
 use crate::geometry::{Camera, Geometry, Projection};
 use crate::{Error, Result};

@@ -79,7 +79,13 @@ impl Sheet {
     /// Forward: `S[m][z] = Σ_corners w · V(plane, corner, z)` over the sheet's z-range. With
     /// z-fastest volumes each corner is a contiguous z-line; otherwise the loops run z-outer so
     /// that the volume is read slice by slice.
-    pub(super) fn build(&mut self, vol: &[f32], layout: Layout, c: &ColumnWalk, jr: (usize, usize)) {
+    pub(super) fn build(
+        &mut self,
+        vol: &[f32],
+        layout: Layout,
+        c: &ColumnWalk,
+        jr: (usize, usize),
+    ) {
         self.corners(layout, c, jr);
         let (h, sz, nzs) = (self.h, layout.stride[2], self.h - 2);
         if sz == 1 {
@@ -102,7 +108,13 @@ impl Sheet {
     }
 
     /// Adjoint of [`Sheet::build`]: scatter the sheet's z-range into `acc`, same taps.
-    pub(super) fn scatter(&mut self, acc: &mut [f32], layout: Layout, c: &ColumnWalk, jr: (usize, usize)) {
+    pub(super) fn scatter(
+        &mut self,
+        acc: &mut [f32],
+        layout: Layout,
+        c: &ColumnWalk,
+        jr: (usize, usize),
+    ) {
         self.corners(layout, c, jr);
         let (h, sz, nzs) = (self.h, layout.stride[2], self.h - 2);
         if sz == 1 {

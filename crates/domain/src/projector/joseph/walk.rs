@@ -289,7 +289,6 @@ impl ColumnWalk {
     }
 }
 
-
 /// Rounding constant of [`floorish`]: 1.5·2²³.
 pub(crate) const MAGIC: f32 = 12_582_912.0;
 

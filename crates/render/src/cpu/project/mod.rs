@@ -21,8 +21,8 @@ mod rows;
 
 use backward::*;
 use forward::*;
-pub use prepare::{PREPARED_WIDTH, prepared_width, project_prepare};
 use prepare::*;
+pub use prepare::{PREPARED_WIDTH, prepared_width, project_prepare};
 use rows::*;
 
 use rayon::prelude::*;

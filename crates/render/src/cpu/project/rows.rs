@@ -8,7 +8,13 @@ use super::*;
 /// `a (dx + β dy)² + γ dy² ≤ cut²`, clamped to `[x0, x1)`; widened by one pixel each side so
 /// rounding never drops a pixel the per-pixel test would keep.
 #[inline(always)]
-pub(super) fn row_span(s: &PixelSplat, dy: f32, cut2: f32, x0: usize, x1: usize) -> Option<(usize, usize)> {
+pub(super) fn row_span(
+    s: &PixelSplat,
+    dy: f32,
+    cut2: f32,
+    x0: usize,
+    x1: usize,
+) -> Option<(usize, usize)> {
     let rem = cut2 - s.gamma * dy * dy;
     if rem.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return None;
@@ -26,7 +32,10 @@ pub(super) const TILE_PIXELS: usize = TILE * TILE;
 
 /// Pixel box `[x0, x1) × [y0, y1)` of `s` clipped to tile rect `r`, or `None` if empty.
 #[inline(always)]
-pub(super) fn clip(s: &PixelSplat, r: (usize, usize, usize, usize)) -> Option<(usize, usize, usize, usize)> {
+pub(super) fn clip(
+    s: &PixelSplat,
+    r: (usize, usize, usize, usize),
+) -> Option<(usize, usize, usize, usize)> {
     let (x0, x1) = ((s.x0 as usize).max(r.0), (s.x1 as usize).min(r.1));
     let (y0, y1) = ((s.y0 as usize).max(r.2), (s.y1 as usize).min(r.3));
     (x0 < x1 && y0 < y1).then_some((x0, x1, y0, y1))
@@ -56,7 +65,13 @@ impl<L: Lanes> SplatBlock<L> {
     /// Block of tile lanes `h..h + HALF` of a tile starting at column `c0`, for a splat clipped
     /// to tile lanes `[l0, l1)`.
     #[inline(always)]
-    pub(super) fn new(s: &PixelSplat, c0: usize, h: usize, (l0, l1): (usize, usize), cut2: f32) -> Self {
+    pub(super) fn new(
+        s: &PixelSplat,
+        c0: usize,
+        h: usize,
+        (l0, l1): (usize, usize),
+        cut2: f32,
+    ) -> Self {
         let cut: [f32; HALF] = std::array::from_fn(|j| {
             if (l0..l1).contains(&(h + j)) {
                 -0.5 * cut2
