@@ -66,6 +66,47 @@ fn recon_writes_volumes_config_and_metrics() {
     ]);
     assert!(ok, "{t}");
     assert!(run.join("notes.txt").is_file() && run.join("run.json").is_file());
+    // The evaluation protocol's options reach metrics.json; both PSNR conventions are printed.
+    let (ok, t) = prism(&[
+        "recon",
+        path(&rc),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&run),
+        "--force",
+        "--eval-grid",
+        "32",
+        "--eval-slices",
+        "all",
+    ]);
+    assert!(ok && t.contains("PSNR (volume / slices)"), "{t}");
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["protocol"]["grid"], "resized to 32³ (trilinear)");
+    assert_eq!(m["protocol"]["slices"], "all");
+    assert!(m["channels"][0]["lpips"].is_null() && m["mean"]["psnr_slices"].is_f64());
+    for (flag, value, needle) in [
+        ("--eval-grid", "1", "--eval-grid"),
+        (
+            "--lpips-weights",
+            "/nonexistent/w.safetensors",
+            "/nonexistent/w.safetensors",
+        ),
+    ] {
+        let (ok, t) = prism(&[
+            "recon",
+            path(&rc),
+            "-s",
+            path(&scene),
+            "-o",
+            path(&run),
+            "--force",
+            flag,
+            value,
+        ]);
+        assert!(!ok && t.contains(needle), "{flag}: {t}");
+    }
 }
 
 #[test]

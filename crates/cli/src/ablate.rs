@@ -2,7 +2,7 @@
 //! ablations from one shared stage 1 (see `prism_recon::pipeline::ablation`).
 
 use crate::progress::Bars;
-use crate::recon::{GaussianArgs, OutArgs};
+use crate::recon::{EvalArgs, GaussianArgs, OutArgs};
 use anyhow::bail;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
@@ -34,12 +34,15 @@ pub struct Args {
     out: OutArgs,
     #[command(flatten)]
     gaussian: GaussianArgs,
+    #[command(flatten)]
+    eval: EvalArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let mut config = MethodConfig::load(&args.config)?;
+    let evaluation = args.eval.evaluation()?;
     let bars = Bars::new();
-    let options = args.gaussian.options(&mut config, &bars)?;
+    let options = args.gaussian.options(&mut config, &bars, &evaluation)?;
     let base = match &config {
         MethodConfig::Gaussian(c) if c.method == GaussianMethod::FourDsg => c,
         _ => bail!(

@@ -4,7 +4,9 @@
 use crate::progress::Bars;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
-use prism_recon::gaussian::DeviceChoice;
+use prism_recon::evaluate::lpips::Lpips;
+use prism_recon::evaluate::{Evaluation, Protocol, SliceAxes};
+use prism_recon::gaussian::{DeviceChoice, cpu_device};
 use prism_recon::pipeline::{RunDir, RunOptions, run};
 use std::path::PathBuf;
 
@@ -20,6 +22,57 @@ pub struct ReconArgs {
     out: OutArgs,
     #[command(flatten)]
     gaussian: GaussianArgs,
+    #[command(flatten)]
+    eval: EvalArgs,
+}
+
+/// How the volumes are scored (`docs/metrics.md`).
+#[derive(clap::Args)]
+pub struct EvalArgs {
+    /// Evaluation grid: `native` (the reconstruction's own) or an edge length `n` (both volumes
+    /// resampled trilinearly to n³; the paper evaluates on 256³).
+    #[arg(long = "eval-grid", value_name = "native|N", default_value = "native")]
+    pub grid: String,
+    /// Slices of the slice-averaged metrics: `axial` (z) or `all` (z, y and x).
+    #[arg(long = "eval-slices", value_enum, default_value = "axial")]
+    pub slices: SlicesArg,
+    /// LPIPS weights (safetensors made by scripts/lpips_weights.py); without them the LPIPS
+    /// fields of metrics.json are null.
+    #[arg(long = "lpips-weights", value_name = "FILE")]
+    pub lpips_weights: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum SlicesArg {
+    Axial,
+    All,
+}
+
+impl EvalArgs {
+    /// The evaluation these arguments ask for (LPIPS on the CPU).
+    pub fn evaluation(&self) -> anyhow::Result<Evaluation> {
+        let grid = match self.grid.as_str() {
+            "native" => None,
+            n => match n.parse::<usize>() {
+                Ok(n) if (2..=4096).contains(&n) => Some(n),
+                _ => anyhow::bail!(
+                    "--eval-grid: expected `native` or an edge length in 2..=4096, got `{n}`"
+                ),
+            },
+        };
+        let slices = match self.slices {
+            SlicesArg::Axial => SliceAxes::Axial,
+            SlicesArg::All => SliceAxes::All,
+        };
+        let lpips = match &self.lpips_weights {
+            Some(p) => Some((Lpips::load(p, &cpu_device())?, p.clone())),
+            None => None,
+        };
+        Ok(Evaluation {
+            protocol: Protocol { grid, slices },
+            lpips,
+        })
+    }
 }
 
 /// Where a Gaussian method runs and what it starts from.
@@ -38,11 +91,13 @@ pub struct GaussianArgs {
 }
 
 impl GaussianArgs {
-    /// Run options for `config` (its device overridden by `--device`), reporting to `observer`.
+    /// Run options for `config` (its device overridden by `--device`), reporting to `observer`
+    /// and scoring under `evaluation`.
     pub fn options<'a>(
         &'a self,
         config: &mut MethodConfig,
         observer: &'a Bars,
+        evaluation: &'a Evaluation,
     ) -> anyhow::Result<RunOptions<'a>> {
         if let Some(d) = self.device {
             config.set_device(d.choice());
@@ -51,6 +106,7 @@ impl GaussianArgs {
             device: config.device().device()?,
             from_geometry: self.from_geometry.as_deref(),
             observer,
+            evaluation,
         };
         options.check(config)?;
         Ok(options)
@@ -95,23 +151,36 @@ impl DeviceArg {
 pub fn run_cmd(args: ReconArgs) -> anyhow::Result<()> {
     let mut config = MethodConfig::load(&args.config)?;
     let scene = Scene::load(&args.scene)?;
+    let evaluation = args.eval.evaluation()?;
     let bars = Bars::new();
-    let options = args.gaussian.options(&mut config, &bars)?;
+    let options = args.gaussian.options(&mut config, &bars, &evaluation)?;
     let outcome = run(&config, &scene, args.out.run_dir()?, &options)?;
     bars.finish();
     match outcome.metrics {
         Some(report) => {
+            let lpips = |v: Option<f64>| v.map_or(String::new(), |v| format!("  LPIPS {v:.4}"));
+            eprintln!("{:>12}  PSNR (volume / slices)  SSIM (volume / slices)", "");
             for c in &report.channels {
+                let s = &c.scores;
                 eprintln!(
-                    "{:>12}  PSNR {:6.2} dB  SSIM {:.4}",
-                    c.label, c.psnr, c.ssim
+                    "{:>12}  {:6.2} / {:6.2} dB     {:.4} / {:.4}{}",
+                    c.label,
+                    s.psnr,
+                    s.psnr_slices,
+                    s.ssim,
+                    s.ssim_slices,
+                    lpips(s.lpips)
                 );
             }
+            let m = &report.mean;
             eprintln!(
-                "{:>12}  PSNR {:6.2} dB  SSIM {:.4}  ({:.2} s) → {}",
+                "{:>12}  {:6.2} / {:6.2} dB     {:.4} / {:.4}{}  ({:.2} s) → {}",
                 "mean",
-                report.mean.psnr,
-                report.mean.ssim,
+                m.psnr,
+                m.psnr_slices,
+                m.ssim,
+                m.ssim_slices,
+                lpips(m.lpips),
                 report.wall_s,
                 outcome.dir.join(RunDir::METRICS).display()
             );

@@ -18,6 +18,16 @@ pub enum ProjectionMode {
     Exact,
 }
 
+impl ProjectionMode {
+    /// The name configs use (`affine`, `exact`).
+    pub fn name(self) -> &'static str {
+        match self {
+            ProjectionMode::Affine => "affine",
+            ProjectionMode::Exact => "exact",
+        }
+    }
+}
+
 /// Settings of [`crate::project`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ProjectOptions {

@@ -1,19 +1,24 @@
 //! Reconstructed volumes scored against the scene's references: the contents of
-//! `metrics.json` ([`Metrics`]) and the scores a training stage logs as it goes ([`Evaluator`]).
+//! `metrics.json` ([`Metrics`]) under an evaluation [`protocol`], and the scores a training stage
+//! logs as it goes ([`Evaluator`]). `docs/metrics.md` describes the protocol and every field.
 //!
-//! Protocol (R²-Gaussian's): prediction and reference are divided by the reference's maximum;
-//! PSNR over the whole 3-D volume with peak 1; 3-D SSIM (zero-padded window, data range 1), and
-//! for reference scikit-image's border convention. Projection metrics re-project the volume with
-//! the Joseph projector at the scene's test views (R²-Gaussian's `metric_proj`).
+//! Projection metrics (R²-Gaussian's `metric_proj`) compare the scene's test views with
+//! projections of the reconstruction: Joseph re-projections of the volume for the classic
+//! methods, the Gaussian renderer itself for the Gaussian methods ([`TestProjector`]).
+
+pub mod lpips;
+pub mod protocol;
+
+pub use protocol::{Evaluation, Protocol, ProtocolRecord, Scores, SliceAxes, score};
 
 use crate::gaussian::GaussianModel;
 use crate::gaussian::World;
 use crate::gaussian::volume::{volumes, volumes_with};
 use crate::{Error, Result};
 use burn::tensor::Tensor;
-use ndarray::{Array3, Array4, ArrayView3, Axis};
+use ndarray::{Array3, Array4, Axis};
 use prism_domain::geometry::VolumeGrid;
-use prism_domain::metrics::{Border, SsimParams, projection_metrics, psnr, ssim_3d};
+use prism_domain::metrics::{SsimParams, projection_metrics, psnr, ssim_3d};
 use prism_domain::projector::Joseph;
 use prism_domain::scene::{Scene, SpectralCoordinate};
 use serde::{Deserialize, Serialize};
@@ -25,21 +30,21 @@ pub struct ChannelMetrics {
     pub coordinate: SpectralCoordinate,
     /// Number of training views the channel was reconstructed from.
     pub views: usize,
-    /// 3-D PSNR (dB) and SSIM (R²-Gaussian, zero-padded window) of the normalised volume.
-    pub psnr: f64,
-    pub ssim: f64,
-    /// 3-D SSIM with scikit-image's border convention (interior of each slice), for reference.
-    pub ssim_skimage: f64,
+    #[serde(flatten)]
+    pub scores: Scores,
     /// Mean projection PSNR/SSIM over the test views (absent when the channel has none).
     pub proj_psnr: Option<f64>,
     pub proj_ssim: Option<f64>,
 }
 
-/// Mean over channels.
+/// Means over channels.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MeanMetrics {
     pub psnr: f64,
     pub ssim: f64,
+    pub psnr_slices: f64,
+    pub ssim_slices: f64,
+    pub lpips: Option<f64>,
 }
 
 /// Contents of `metrics.json`.
@@ -52,10 +57,22 @@ pub struct Metrics {
     pub wall_s: f64,
     pub channels: Vec<ChannelMetrics>,
     pub mean: MeanMetrics,
-    /// How volumes were normalised before scoring.
-    pub normalisation: String,
+    /// How the volumes were scored.
+    pub protocol: ProtocolRecord,
     /// Fraction of voxels seen by no ray (0 for a fully covered grid).
     pub unseen_fraction: f64,
+}
+
+/// How the test views of a channel are projected for the projection metrics.
+pub enum TestProjector<'a> {
+    /// Joseph re-projection of the reconstructed volume.
+    Reproject,
+    /// The method's own renderer: `render(channel, views)` gives line integrals
+    /// `[view][row][col]`; `what` names it in `metrics.json`.
+    Render {
+        what: String,
+        render: &'a dyn Fn(usize, &[usize]) -> Result<Array3<f32>>,
+    },
 }
 
 /// What was reconstructed, for [`Metrics`].
@@ -67,38 +84,20 @@ pub struct Reconstruction<'a> {
     pub views: &'a [Vec<usize>],
     pub wall_s: f64,
     pub unseen: f64,
+    pub projector: TestProjector<'a>,
 }
 
-/// The reference's peak: the divisor of prediction and reference (an error when not positive).
-fn peak(truth: ArrayView3<f32>, what: &str) -> Result<f32> {
-    let peak = truth.fold(0.0f32, |a, &b| a.max(b));
-    if peak <= 0.0 {
-        return Err(Error::invalid(
-            "references",
-            format!("{what}: the reference volume has no positive value"),
-        ));
-    }
-    Ok(peak)
-}
-
-/// Score `r` against the references of `scene` (whose channels are `r`'s); `None` when the
-/// scene has none.
-pub fn metrics(scene: &Scene, r: &Reconstruction) -> Result<Option<Metrics>> {
+/// Score `r` against the references of `scene` (whose channels are `r`'s) under `eval`; `None`
+/// when the scene has none.
+pub fn metrics(scene: &Scene, r: &Reconstruction, eval: &Evaluation) -> Result<Option<Metrics>> {
     let Some(refs) = &scene.references else {
         return Ok(None);
     };
     let mut channels = Vec::new();
     for (c, ch) in scene.channels.iter().enumerate() {
-        let truth = refs.index_axis(Axis(0), c);
-        let peak = peak(truth, &format!("channel `{}`", ch.label))?;
-        let t = truth.mapv(|x| x / peak);
-        let p = r.volumes[c].mapv(|x| x / peak);
-        let zero_pad = SsimParams::default();
-        let crop = SsimParams {
-            border: Border::Crop,
-            ..zero_pad
-        };
-        let (proj_psnr, proj_ssim) = match test_projection_metrics(scene, c, &r.volumes[c])? {
+        let scores = score(r.volumes[c].view(), refs.index_axis(Axis(0), c), eval)
+            .map_err(|e| e.under(&format!("channel `{}`", ch.label)))?;
+        let (proj_psnr, proj_ssim) = match test_projection_metrics(scene, c, r)? {
             Some((a, b)) => (Some(a), Some(b)),
             None => (None, None),
         };
@@ -106,24 +105,31 @@ pub fn metrics(scene: &Scene, r: &Reconstruction) -> Result<Option<Metrics>> {
             label: ch.label.clone(),
             coordinate: ch.coordinate.clone(),
             views: r.views[c].len(),
-            psnr: psnr(p.view(), t.view(), 1.0)?,
-            ssim: ssim_3d(p.view(), t.view(), &zero_pad)?.mean,
-            ssim_skimage: ssim_3d(p.view(), t.view(), &crop)?.mean,
+            scores,
             proj_psnr,
             proj_ssim,
         });
     }
     let n = channels.len() as f64;
+    let mean = |f: fn(&Scores) -> f64| channels.iter().map(|c| f(&c.scores)).sum::<f64>() / n;
+    let lpips: Option<Vec<f64>> = channels.iter().map(|c| c.scores.lpips).collect();
+    let projections = match &r.projector {
+        TestProjector::Reproject => "Joseph re-projection of the reconstructed volume".to_string(),
+        TestProjector::Render { what, .. } => what.clone(),
+    };
     Ok(Some(Metrics {
         method: r.method.to_string(),
         scene: scene.name.clone(),
         wall_s: r.wall_s,
         mean: MeanMetrics {
-            psnr: channels.iter().map(|c| c.psnr).sum::<f64>() / n,
-            ssim: channels.iter().map(|c| c.ssim).sum::<f64>() / n,
+            psnr: mean(|s| s.psnr),
+            ssim: mean(|s| s.ssim),
+            psnr_slices: mean(|s| s.psnr_slices),
+            ssim_slices: mean(|s| s.ssim_slices),
+            lpips: lpips.map(|v| v.iter().sum::<f64>() / n),
         },
         channels,
-        normalisation: "prediction and reference divided by the reference's maximum; PSNR peak 1, SSIM data range 1".into(),
+        protocol: eval.record(r.volumes[0].shape(), &projections),
         unseen_fraction: r.unseen,
     }))
 }
@@ -132,7 +138,7 @@ pub fn metrics(scene: &Scene, r: &Reconstruction) -> Result<Option<Metrics>> {
 fn test_projection_metrics(
     scene: &Scene,
     c: usize,
-    vol: &Array3<f32>,
+    r: &Reconstruction,
 ) -> Result<Option<(f64, f64)>> {
     let views: Vec<usize> = scene
         .test_views()
@@ -143,8 +149,12 @@ fn test_projection_metrics(
     if views.is_empty() {
         return Ok(None);
     }
-    let a = Joseph::new(&scene.geometry)?;
-    let pred = a.forward_views(vol.view(), &views)?;
+    let pred = match &r.projector {
+        TestProjector::Reproject => {
+            Joseph::new(&scene.geometry)?.forward_views(r.volumes[c].view(), &views)?
+        }
+        TestProjector::Render { render, .. } => render(c, &views)?,
+    };
     let truth = scene.channel_projections(c).select(Axis(0), &views);
     if truth.iter().all(|&x| x <= 0.0) {
         return Ok(None);
@@ -157,9 +167,15 @@ fn test_projection_metrics(
 }
 
 /// PSNR / SSIM (R²-Gaussian conventions) of `pred` against `truth`, both divided by the
-/// reference's maximum.
+/// reference's maximum: the scores a training stage logs.
 pub fn score_volume(pred: Array3<f32>, truth: &Array3<f32>) -> Result<(f64, f64)> {
-    let peak = peak(truth.view(), "a channel")?;
+    let peak = truth.fold(0.0f32, |a, &b| a.max(b));
+    if peak <= 0.0 {
+        return Err(Error::invalid(
+            "references",
+            "a reference volume has no positive value",
+        ));
+    }
     let t = truth.mapv(|x| x / peak);
     let p = pred.mapv(|x| x / peak);
     Ok((

@@ -9,7 +9,7 @@
 //! Variants differ only in `stage2` (and the same seed), so differences are the ablated
 //! choice's alone.
 
-use super::gaussian::{finish, shared_geometry, spectral};
+use super::gaussian::{Outputs, Trained, finish, shared_geometry, spectral};
 use super::run_dir::RunDir;
 use super::setup::{RunOptions, Setup};
 use crate::evaluate::Metrics;
@@ -182,22 +182,28 @@ pub fn ablate(
             stages: root.stages.clone(),
             observer,
         };
-        let (observed, predicted) = spectral(
+        let (observed, predicted, s) = spectral(
             &v.config,
             &setup,
             shared.clone(),
             &mut vdir,
             &options.device,
             &mut journal,
+            options.evaluation,
         )?;
         let train_s = journal.log.train_s();
+        let out = Outputs {
+            observed,
+            predicted,
+            trained: Trained::Spectral(s),
+        };
         let metrics = finish(
             &v.config,
             &setup,
             &mut vdir,
             &mut journal,
-            observed,
-            predicted,
+            out,
+            options.evaluation,
         )?;
         if let Some(m) = &metrics {
             vdir.write_json(RunDir::METRICS, m)?;
@@ -227,7 +233,7 @@ fn row(v: &Variant, report: Option<&Metrics>, stage2_s: f64, train_s: f64) -> Ab
             .map(|r| {
                 r.channels
                     .iter()
-                    .map(|c| (c.label.clone(), c.psnr))
+                    .map(|c| (c.label.clone(), c.scores.psnr))
                     .collect()
             })
             .unwrap_or_default(),

@@ -1,11 +1,10 @@
 //! A classic method's run: every channel reconstructed independently from its training views.
 
 use super::run_dir::RunDir;
-use super::setup::Setup;
+use super::setup::{RunOptions, Setup};
 use crate::Result;
 use crate::classic::{ClassicConfig, reconstruct_channel};
-use crate::evaluate::{Metrics, Reconstruction, metrics};
-use prism_domain::observe::Observer;
+use crate::evaluate::{Metrics, Reconstruction, TestProjector, metrics};
 use prism_domain::scene::Scene;
 use std::time::Instant;
 
@@ -14,8 +13,9 @@ pub(super) fn run(
     config: &ClassicConfig,
     scene: &Scene,
     dir: &mut RunDir,
-    observer: &dyn Observer,
+    options: &RunOptions,
 ) -> Result<Option<Metrics>> {
+    let observer = options.observer;
     config.validate()?;
     let setup = Setup::new(scene, Vec::new(), observer)?;
     let iters = config.resolved_iterations();
@@ -46,6 +46,8 @@ pub(super) fn run(
             views: &setup.views,
             wall_s,
             unseen: setup.unseen,
+            projector: TestProjector::Reproject,
         },
+        options.evaluation,
     )
 }

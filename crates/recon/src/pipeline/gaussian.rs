@@ -4,27 +4,66 @@
 
 use super::run_dir::RunDir;
 use super::setup::{RunOptions, Setup};
-use crate::evaluate::{Evaluator, Metrics, Reconstruction, metrics};
+use crate::evaluate::{Evaluation, Evaluator, Metrics, Reconstruction, TestProjector, metrics};
 use crate::gaussian::io::{ModelInfo, save_model, write_ply};
 use crate::gaussian::volume::{volumes, volumes_with};
-use crate::gaussian::{GaussianConfig, GaussianMethod};
+use crate::gaussian::{GaussianConfig, GaussianMethod, GaussianModel, World};
 use crate::init::initial_model;
-use crate::query::{Holdout, predict_holdout};
+use crate::query::{Holdout, predict_holdout, render_views};
 use crate::stage1::checkpoint::{self, Checkpoint, Fingerprint};
 use crate::stage1::{SharedGeometry, train_shared_geometry};
-use crate::stage2::train_spectral;
+use crate::stage2::{Spectral, train_spectral};
 use crate::train::data::image;
 use crate::train::{Journal, RunLog, Stage, StageReport, Supervision};
 use crate::{Error, Result};
 use burn::tensor::Device;
 use ndarray::{Array3, Axis};
+use prism_domain::geometry::Geometry;
 use prism_domain::observe::{Level, Observer};
 use prism_domain::scene::Scene;
+use prism_render::ProjectOptions;
 use serde::Serialize;
 use std::path::Path;
 
 /// One volume per channel (mm⁻¹, `[z][y][x]`).
 pub(super) type Volumes = Vec<Array3<f32>>;
+
+/// The trained models of a run, kept to render its test views.
+pub(super) enum Trained {
+    /// R²-Gaussian: one model (and world) per observed channel.
+    PerChannel(Vec<(GaussianModel, World)>),
+    /// 4D-SG: one model with a raw density column per observed channel.
+    Spectral(Spectral),
+}
+
+impl Trained {
+    /// Line integrals `[view][row][col]` of observed channel `c` at `views` of `geometry`.
+    fn render(
+        &self,
+        geometry: &Geometry,
+        options: &ProjectOptions,
+        c: usize,
+        views: &[usize],
+    ) -> Result<Array3<f32>> {
+        match self {
+            Trained::PerChannel(m) => {
+                let (model, world) = &m[c];
+                render_views(
+                    model,
+                    model.densities.value.clone(),
+                    world,
+                    geometry,
+                    views,
+                    options,
+                )
+            }
+            Trained::Spectral(s) => {
+                let raw = s.raw.clone().narrow(1, c, 1);
+                render_views(&s.model, raw, &s.world, geometry, views, options)
+            }
+        }
+    }
+}
 
 /// Contents of `train.json`.
 #[derive(Serialize)]
@@ -46,12 +85,12 @@ pub(super) fn run(
     config.validate()?;
     let setup = Setup::new(scene, config.holdout_indices(scene)?, options.observer)?;
     let device = &options.device;
-    let (mut journal, observed, predicted) = match config.method {
+    let (mut journal, observed, predicted, trained) = match config.method {
         GaussianMethod::R2gs => {
             let mut journal =
                 Journal::new(RunLog::create(&dir.file(RunDir::LOG))?, options.observer);
-            let observed = r2gs(config, &setup, dir, device, &mut journal)?;
-            (journal, observed, None)
+            let (observed, models) = r2gs(config, &setup, dir, device, &mut journal)?;
+            (journal, observed, None, Trained::PerChannel(models))
         }
         GaussianMethod::Stage1 | GaussianMethod::FourDsg => {
             let (mut journal, shared) = shared_geometry(
@@ -62,12 +101,32 @@ pub(super) fn run(
                 options.from_geometry,
                 options.observer,
             )?;
-            let (observed, predicted) =
-                spectral(config, &setup, shared, dir, device, &mut journal)?;
-            (journal, observed, predicted)
+            let (observed, predicted, s) = spectral(
+                config,
+                &setup,
+                shared,
+                dir,
+                device,
+                &mut journal,
+                options.evaluation,
+            )?;
+            (journal, observed, predicted, Trained::Spectral(s))
         }
     };
-    finish(config, &setup, dir, &mut journal, observed, predicted)
+    let out = Outputs {
+        observed,
+        predicted,
+        trained,
+    };
+    finish(config, &setup, dir, &mut journal, out, options.evaluation)
+}
+
+/// What a Gaussian run produced.
+pub(super) struct Outputs {
+    pub observed: Volumes,
+    /// The held-out channels' predictions (4D-SG with `holdout_channels`).
+    pub predicted: Option<Volumes>,
+    pub trained: Trained,
 }
 
 /// Stage 1 in `dir`: trained (its checkpoint saved there), or continued from the checkpoint
@@ -111,10 +170,11 @@ fn r2gs(
     dir: &mut RunDir,
     device: &Device,
     journal: &mut Journal,
-) -> Result<Volumes> {
+) -> Result<(Volumes, Vec<(GaussianModel, World)>)> {
     let scene = &*setup.observed;
     let geometry = &scene.geometry;
     let mut out = Vec::new();
+    let mut models = Vec::new();
     for (c, ch) in scene.channels.iter().enumerate() {
         let views = &setup.views[c];
         let proj = scene.channel_projections(c);
@@ -147,8 +207,9 @@ fn r2gs(
         )?;
         let v = volumes(&model, &geometry.volume, &world)?;
         out.push(v.index_axis(Axis(0), 0).to_owned());
+        models.push((model, world));
     }
-    Ok(out)
+    Ok((out, models))
 }
 
 /// The spectral stage on the shared geometry; saves the model and returns the observed
@@ -160,7 +221,8 @@ pub(super) fn spectral(
     dir: &mut RunDir,
     device: &Device,
     journal: &mut Journal,
-) -> Result<(Volumes, Option<Volumes>)> {
+    eval: &Evaluation,
+) -> Result<(Volumes, Option<Volumes>, Spectral)> {
     let scene = &*setup.observed;
     let m = scene.n_channels();
     let s = train_spectral(config, scene, shared, device, journal)?;
@@ -190,7 +252,7 @@ pub(super) fn spectral(
         .map(|c| v.index_axis(Axis(0), c).to_owned())
         .collect();
     if setup.held.is_empty() {
-        return Ok((observed, None));
+        return Ok((observed, None, s));
     }
     let hold = Holdout {
         model: &s.model,
@@ -198,7 +260,7 @@ pub(super) fn spectral(
         world: &s.world,
         info: &info,
     };
-    let (predicted, scores) = predict_holdout(&hold, setup.full, &setup.held)?;
+    let (predicted, scores) = predict_holdout(&hold, setup.full, &setup.held, eval)?;
     dir.write_json(RunDir::HOLDOUT, &scores)?;
     for s in &scores {
         let db = |v: Option<f64>| v.map_or("–".into(), |v| format!("{v:.2} dB"));
@@ -207,13 +269,13 @@ pub(super) fn spectral(
             &format!(
                 "held out {:>10}  volume PSNR {}  projection PSNR {} ({} views)",
                 s.label,
-                db(s.volume_psnr),
+                db(s.volume.as_ref().map(|v| v.psnr)),
                 db(s.proj_psnr),
                 s.views
             ),
         );
     }
-    Ok((observed, Some(predicted)))
+    Ok((observed, Some(predicted), s))
 }
 
 /// Write `train.json` and every channel's volume (observed ones fitted, held-out ones
@@ -223,8 +285,8 @@ pub(super) fn finish(
     setup: &Setup,
     dir: &mut RunDir,
     journal: &mut Journal,
-    observed: Volumes,
-    predicted: Option<Volumes>,
+    out: Outputs,
+    eval: &Evaluation,
 ) -> Result<Option<Metrics>> {
     let train_s = journal.log.train_s();
     let summary = TrainSummary {
@@ -235,8 +297,8 @@ pub(super) fn finish(
         stages: &journal.stages,
     };
     dir.write_json(RunDir::TRAIN, &summary)?;
-    let mut next_observed = observed.into_iter();
-    let mut next_held = predicted.into_iter().flatten();
+    let mut next_observed = out.observed.into_iter();
+    let mut next_held = out.predicted.into_iter().flatten();
     let mut fitted = Vec::new();
     for (c, ch) in setup.full.channels.iter().enumerate() {
         let held = setup.held.contains(&c);
@@ -251,6 +313,9 @@ pub(super) fn finish(
             fitted.push(v);
         }
     }
+    let options = config.projection.options();
+    let geometry = &setup.observed.geometry;
+    let render = |c: usize, views: &[usize]| out.trained.render(geometry, &options, c, views);
     metrics(
         &setup.observed,
         &Reconstruction {
@@ -259,6 +324,14 @@ pub(super) fn finish(
             views: &setup.views,
             wall_s: train_s,
             unseen: setup.unseen,
+            projector: TestProjector::Render {
+                what: format!(
+                    "the Gaussian renderer ({} projection) from the trained model",
+                    config.projection.mode.name()
+                ),
+                render: &render,
+            },
         },
+        eval,
     )
 }

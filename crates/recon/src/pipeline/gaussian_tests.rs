@@ -3,7 +3,7 @@
 
 use super::tests::scene;
 use super::{RunDir, RunOptions, run};
-use crate::evaluate::Metrics;
+use crate::evaluate::{Evaluation, Metrics};
 use crate::gaussian::config::{DensifyConfig, InitConfig};
 use crate::gaussian::host::{self, HostGaussians, ScaleBounds, inverse_softplus};
 use crate::gaussian::io::{ModelInfo, load_model, save_model, write_ply};
@@ -34,6 +34,7 @@ fn run_from(
         device: device.clone(),
         from_geometry: from,
         observer: &Silent,
+        evaluation: &Evaluation::default(),
     };
     let config = MethodConfig::Gaussian(Box::new(cfg.clone()));
     let outcome = run(&config, scene, RunDir::create(out, false)?, &options)?;
@@ -110,8 +111,21 @@ fn both_methods_train_densify_score_and_repeat_exactly() {
             d["cloned"].as_u64().unwrap() + d["split"].as_u64().unwrap() > 0,
             "{train}"
         );
+        // Test views are rendered by the model itself.
+        assert!(
+            report
+                .protocol
+                .projections
+                .contains("Gaussian renderer (affine"),
+            "{:?}",
+            report.protocol
+        );
         for ch in &report.channels {
-            assert!(ch.psnr.is_finite() && ch.psnr > 15.0, "{method:?}: {ch:?}");
+            assert!(
+                ch.scores.psnr.is_finite() && ch.scores.psnr > 15.0,
+                "{method:?}: {ch:?}"
+            );
+            assert!(ch.proj_psnr.unwrap() > 15.0, "{method:?}: {ch:?}");
             assert!(a.path().join(format!("{}.npy", ch.label)).exists());
         }
     }
@@ -268,7 +282,7 @@ fn four_dsg_trains_the_curve_model_and_predicts_a_held_out_channel() {
         .unwrap();
         let h = &holdout[0];
         assert_eq!(h["label"], scene.channels[1].label.as_str());
-        assert!(h["volume_psnr"].as_f64().unwrap() > 15.0, "{holdout}");
+        assert!(h["volume"]["psnr"].as_f64().unwrap() > 15.0, "{holdout}");
         assert!(h["proj_psnr"].as_f64().unwrap() > 15.0, "{holdout}");
         // Queries: at an observed grid point the query reproduces the fitted channel's volume;
         // outside the grid it is refused unless extrapolation is asked for.
@@ -372,7 +386,7 @@ fn stage_two_runs_on_the_ndarray_backend() {
     #[allow(deprecated)] // burn-ndarray goes in Burn 0.23; until then our ops serve it too
     let dev = burn::tensor::Device::ndarray();
     let report = run_on(&cfg, &scene, dir.path(), &dev).unwrap();
-    assert!(report.channels.iter().all(|c| c.psnr.is_finite()));
+    assert!(report.channels.iter().all(|c| c.scores.psnr.is_finite()));
     let log = losses(dir.path());
     assert!(log.iter().any(|r| r.0 == "gscnet"), "{log:?}");
     assert!(log.iter().all(|r| r.2.is_finite()), "{log:?}");
@@ -488,7 +502,10 @@ fn the_projection_mode_reaches_training_and_queries() {
     };
     let dir = tempfile::tempdir().unwrap();
     let report = run_on(&cfg, &scene, dir.path(), &dev).unwrap();
-    assert!(report.channels.iter().all(|c| c.psnr > 15.0), "{report:?}");
+    assert!(
+        report.channels.iter().all(|c| c.scores.psnr > 15.0),
+        "{report:?}"
+    );
     let resolved = std::fs::read_to_string(dir.path().join("config.resolved.yaml")).unwrap();
     assert!(resolved.contains("mode: exact"), "{resolved}");
     // Same seed and settings but the projection: the losses differ from the first record on.
@@ -546,6 +563,6 @@ fn a_4dsg_run_on_wgpu_follows_the_cpu_run() {
     }
     // Measured ≤ 1e-4 dB apart.
     for (c, g) in cpu.channels.iter().zip(&gpu.channels) {
-        assert!((c.psnr - g.psnr).abs() < 0.01, "{c:?} {g:?}");
+        assert!((c.scores.psnr - g.psnr).abs() < 0.01, "{c:?} {g:?}");
     }
 }

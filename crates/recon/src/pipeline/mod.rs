@@ -24,7 +24,7 @@ pub fn run(
     options.check(config)?;
     dir.write_text(RunDir::CONFIG, &config.resolved_yaml()?)?;
     let metrics = match config {
-        MethodConfig::Classic(c) => classic::run(c, scene, &mut dir, options.observer)?,
+        MethodConfig::Classic(c) => classic::run(c, scene, &mut dir, options)?,
         MethodConfig::Gaussian(c) => gaussian::run(c, scene, &mut dir, options)?,
     };
     if let Some(m) = &metrics {

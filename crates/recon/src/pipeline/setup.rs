@@ -2,7 +2,7 @@
 //! observed and the held-out channels.
 
 use super::run_dir::RunDir;
-use crate::evaluate::Metrics;
+use crate::evaluate::{Evaluation, Metrics};
 use crate::{Error, MethodConfig, Result};
 use burn::tensor::Device;
 use prism_domain::observe::{Level, Observer};
@@ -19,6 +19,8 @@ pub struct RunOptions<'a> {
     /// holding one) instead of training stage 1.
     pub from_geometry: Option<&'a Path>,
     pub observer: &'a dyn Observer,
+    /// How the volumes are scored (`metrics.json`, `holdout.json`).
+    pub evaluation: &'a Evaluation,
 }
 
 impl RunOptions<'_> {

@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::classic::{ClassicConfig, ClassicMethod, Window};
+use crate::evaluate::Evaluation;
 use crate::gaussian::cpu_device;
 use ndarray::{Array2, Array3, Array4, Axis, stack};
 use prism_domain::geometry::{Beam, Detector, Geometry, VolumeGrid};
@@ -91,6 +92,7 @@ pub(crate) fn run_into(
         device: cpu_device(),
         from_geometry: None,
         observer: &Silent,
+        evaluation: &Evaluation::default(),
     };
     run(config, scene, RunDir::create(out, force)?, &options)
 }
@@ -146,10 +148,13 @@ fn every_method_writes_volumes_config_and_metrics() {
         assert_eq!(report.channels[0].views, 24);
         assert_eq!(report.channels[1].views, 16);
         for c in &report.channels {
-            assert!(c.psnr.is_finite() && c.ssim > 0.0 && c.ssim <= 1.0, "{c:?}");
+            assert!(
+                c.scores.psnr.is_finite() && c.scores.ssim > 0.0 && c.scores.ssim <= 1.0,
+                "{c:?}"
+            );
             assert!(c.proj_psnr.unwrap() > 15.0, "{c:?}");
         }
-        let mean = (report.channels[0].psnr + report.channels[1].psnr) / 2.0;
+        let mean = (report.channels[0].scores.psnr + report.channels[1].scores.psnr) / 2.0;
         assert!((json["mean"]["psnr"].as_f64().unwrap() - mean).abs() < 1e-9);
         // The manifest lists what the run wrote.
         let m = RunDir::manifest(&out).unwrap();
@@ -169,6 +174,73 @@ fn every_method_writes_volumes_config_and_metrics() {
     // mis-scaled FDK < 20 dB.
     assert!(psnrs.iter().all(|&p| p > 25.0), "{psnrs:?}");
     assert!(psnrs[1] > psnrs[0] && psnrs[1] > psnrs[2], "{psnrs:?}");
+}
+
+#[test]
+fn lpips_and_the_slice_protocol_reach_metrics_json() {
+    use crate::evaluate::lpips::{Net, tests::fixture_model};
+    use crate::evaluate::{Protocol, SliceAxes};
+    let dir = tempfile::tempdir().unwrap();
+    let eval = Evaluation {
+        protocol: Protocol {
+            grid: Some(32),
+            slices: SliceAxes::Axial,
+        },
+        lpips: Some((fixture_model(Net::Alex), "fixture.safetensors".into())),
+    };
+    let options = RunOptions {
+        device: cpu_device(),
+        from_geometry: None,
+        observer: &Silent,
+        evaluation: &eval,
+    };
+    let out = dir.path().join("run");
+    let m = run(
+        &classic(ClassicMethod::Sart, 2),
+        &scene(),
+        RunDir::create(&out, false).unwrap(),
+        &options,
+    )
+    .unwrap()
+    .metrics
+    .unwrap();
+    for c in &m.channels {
+        let s = &c.scores;
+        let l = s.lpips.expect("weights were given");
+        assert!(l > 0.0 && l < 1.0, "{c:?}");
+        // 32 axial slices on the resized grid, minus the reference's empty ones.
+        assert!(s.slices > 16 && s.slices <= 32, "{c:?}");
+        assert!(s.psnr_slices.is_finite() && s.ssim_slices > 0.0, "{c:?}");
+    }
+    assert!(m.mean.lpips.is_some());
+    assert_eq!(m.protocol.grid, "resized to 32³ (trilinear)");
+    assert!(m.protocol.lpips.starts_with("alex"), "{:?}", m.protocol);
+    assert!(
+        m.protocol.projections.contains("Joseph"),
+        "{:?}",
+        m.protocol
+    );
+    // Without weights the LPIPS fields are null, not zero, and the protocol says why.
+    let plain = run_into(
+        &classic(ClassicMethod::Sart, 2),
+        &scene(),
+        &dir.path().join("b"),
+        false,
+    )
+    .unwrap()
+    .metrics
+    .unwrap();
+    assert!(plain.channels.iter().all(|c| c.scores.lpips.is_none()));
+    let json = fs::read_to_string(dir.path().join("b").join(RunDir::METRICS)).unwrap();
+    assert!(
+        json.contains("\"lpips\": null") && json.contains("no weights given"),
+        "{json}"
+    );
+    assert!(
+        plain.protocol.grid.starts_with("native 24"),
+        "{:?}",
+        plain.protocol
+    );
 }
 
 #[test]

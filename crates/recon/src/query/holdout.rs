@@ -4,7 +4,7 @@
 
 use super::{raw_at, render_views};
 use crate::Result;
-use crate::evaluate::score_volume;
+use crate::evaluate::{Evaluation, Scores, score};
 use crate::gaussian::io::ModelInfo;
 use crate::gaussian::volume::volumes_with;
 use crate::gaussian::{GaussianModel, World};
@@ -30,9 +30,9 @@ pub struct HoldoutScore {
     pub tau: f64,
     pub coordinate: f64,
     pub unit: String,
-    /// 3-D PSNR / SSIM of the predicted volume (reference-max normalised), when references exist.
-    pub volume_psnr: Option<f64>,
-    pub volume_ssim: Option<f64>,
+    /// The predicted volume's scores against its reference (the run's protocol), when the
+    /// scene has references.
+    pub volume: Option<Scores>,
     /// Mean projection PSNR / SSIM over every view at which the channel was simulated.
     pub proj_psnr: Option<f64>,
     pub proj_ssim: Option<f64>,
@@ -45,6 +45,7 @@ pub fn predict_holdout(
     h: &Holdout,
     full: &Scene,
     held: &[usize],
+    eval: &Evaluation,
 ) -> Result<(Vec<Array3<f32>>, Vec<HoldoutScore>)> {
     let mut vols = Vec::new();
     let mut scores = Vec::new();
@@ -55,12 +56,9 @@ pub fn predict_holdout(
         let vol = volumes_with(h.model, raw.clone(), &full.geometry.volume, h.world)?
             .index_axis(Axis(0), 0)
             .to_owned();
-        let (volume_psnr, volume_ssim) = match &full.references {
-            Some(r) => {
-                let (p, s) = score_volume(vol.clone(), &r.index_axis(Axis(0), c).to_owned())?;
-                (Some(p), Some(s))
-            }
-            None => (None, None),
+        let volume = match &full.references {
+            Some(r) => Some(score(vol.view(), r.index_axis(Axis(0), c), eval)?),
+            None => None,
         };
         let views = full.views_with_channel(c);
         let (proj_psnr, proj_ssim) = if views.is_empty() {
@@ -83,8 +81,7 @@ pub fn predict_holdout(
             tau: ch.tau,
             coordinate: ch.coordinate.value(),
             unit: ch.coordinate.unit().to_string(),
-            volume_psnr,
-            volume_ssim,
+            volume,
             proj_psnr,
             proj_ssim,
             views: views.len(),

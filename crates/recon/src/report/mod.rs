@@ -47,8 +47,8 @@ impl RunScores {
             .iter()
             .map(|c| ChannelScore {
                 label: c.label.clone(),
-                psnr: Some(c.psnr),
-                ssim: Some(c.ssim),
+                psnr: Some(c.scores.psnr),
+                ssim: Some(c.scores.ssim),
                 held_out: false,
                 volume: volume(&c.label),
             })
@@ -59,8 +59,8 @@ impl RunScores {
             channels.extend(scores.into_iter().map(|s| ChannelScore {
                 volume: volume(&s.label),
                 label: s.label,
-                psnr: s.volume_psnr,
-                ssim: s.volume_ssim,
+                psnr: s.volume.as_ref().map(|v| v.psnr),
+                ssim: s.volume.as_ref().map(|v| v.ssim),
                 held_out: true,
             }));
         }
