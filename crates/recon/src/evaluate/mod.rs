@@ -63,16 +63,16 @@ pub struct Metrics {
     pub unseen_fraction: f64,
 }
 
+/// A renderer of test views: `(channel, views)` → line integrals `[view][row][col]`.
+pub type RenderFn<'a> = &'a dyn Fn(usize, &[usize]) -> Result<Array3<f32>>;
+
 /// How the test views of a channel are projected for the projection metrics.
 pub enum TestProjector<'a> {
     /// Joseph re-projection of the reconstructed volume.
     Reproject,
     /// The method's own renderer: `render(channel, views)` gives line integrals
     /// `[view][row][col]`; `what` names it in `metrics.json`.
-    Render {
-        what: String,
-        render: &'a dyn Fn(usize, &[usize]) -> Result<Array3<f32>>,
-    },
+    Render { what: String, render: RenderFn<'a> },
 }
 
 /// What was reconstructed, for [`Metrics`].

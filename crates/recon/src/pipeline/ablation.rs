@@ -195,7 +195,7 @@ pub fn ablate(
         let out = Outputs {
             observed,
             predicted,
-            trained: Trained::Spectral(s),
+            trained: Trained::Spectral(Box::new(s)),
         };
         let metrics = finish(
             &v.config,

@@ -33,7 +33,7 @@ pub(super) enum Trained {
     /// R²-Gaussian: one model (and world) per observed channel.
     PerChannel(Vec<(GaussianModel, World)>),
     /// 4D-SG: one model with a raw density column per observed channel.
-    Spectral(Spectral),
+    Spectral(Box<Spectral>),
 }
 
 impl Trained {
@@ -110,7 +110,7 @@ pub(super) fn run(
                 &mut journal,
                 options.evaluation,
             )?;
-            (journal, observed, predicted, Trained::Spectral(s))
+            (journal, observed, predicted, Trained::Spectral(Box::new(s)))
         }
     };
     let out = Outputs {
