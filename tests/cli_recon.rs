@@ -129,6 +129,38 @@ fn recon_bad_input_names_the_field() {
         );
         assert!(!run.join("metrics.json").exists());
     }
+    // `--set` overrides the config, is validated like the file, and lands in
+    // config.resolved.yaml.
+    let rc = dir.path().join("sart.yaml");
+    std::fs::write(&rc, "method: sart\niterations: 2\n").unwrap();
+    let run = dir.path().join("run-set");
+    let (ok, t) = prism(&[
+        "recon",
+        path(&rc),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&run),
+        "--set",
+        "iterations=0",
+    ]);
+    assert!(
+        !ok && t.contains("iterations") && t.contains("--set iterations=0"),
+        "{t}"
+    );
+    let (ok, t) = prism(&[
+        "recon",
+        path(&rc),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&run),
+        "--set",
+        "iterations=1",
+    ]);
+    assert!(ok, "{t}");
+    let resolved = std::fs::read_to_string(run.join("config.resolved.yaml")).unwrap();
+    assert!(resolved.contains("iterations: 1"), "{resolved}");
 }
 
 /// A temporary directory holding a simulated three-channel scene (in `<dir>/scene`).

@@ -93,3 +93,59 @@ fn bad_input_fails_cleanly_and_names_the_field() {
     let (ok, t) = prism(&["info", dir.path().join("nowhere").to_str().unwrap()]);
     assert!(!ok && t.contains("nowhere"), "{t}");
 }
+
+#[test]
+fn set_overrides_change_the_scene_and_are_recorded() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = write(dir.path(), "tiny.yaml", &tiny());
+    let out = dir.path().join("scene");
+    let o = out.to_str().unwrap();
+    let (ok, t) = prism(&[
+        "simulate",
+        &cfg,
+        "-o",
+        o,
+        "--set",
+        "geometry.views=3",
+        "--set",
+        "channels.1.kev=70",
+    ]);
+    assert!(ok, "{t}");
+    let (ok, t) = prism(&["info", o]);
+    assert!(
+        ok && t.contains("3 train, 2 test") && t.contains("70keV"),
+        "{t}"
+    );
+    let yaml = std::fs::read_to_string(out.join("scene.yaml")).unwrap();
+    assert!(
+        yaml.contains("- geometry.views=3") && yaml.contains("- channels.1.kev=70"),
+        "overrides not recorded in the provenance:\n{yaml}"
+    );
+    // A bad override is refused naming the file, the field and the override.
+    let bad = dir.path().join("bad");
+    let (ok, t) = prism(&[
+        "simulate",
+        &cfg,
+        "-o",
+        bad.to_str().unwrap(),
+        "--set",
+        "geometry.views=-2",
+    ]);
+    assert!(
+        !ok && t.contains("tiny.yaml") && t.contains("geometry.views"),
+        "{t}"
+    );
+    assert!(
+        t.contains("--set geometry.views=-2") && !bad.exists(),
+        "{t}"
+    );
+    let (ok, t) = prism(&[
+        "simulate",
+        &cfg,
+        "-o",
+        bad.to_str().unwrap(),
+        "--set",
+        "views",
+    ]);
+    assert!(!ok && t.contains("key.path=value"), "{t}");
+}

@@ -1,8 +1,8 @@
 //! `prism ablate <freeze|curve-model> <config.yaml> -s <scene_dir> -o <out_dir>`: 4D-SG stage-2
 //! ablations from one shared stage 1 (see `prism_recon::pipeline::ablation`).
 
+use crate::args::{EvalArgs, GaussianArgs, OutArgs, SetArgs};
 use crate::progress::Bars;
-use crate::recon::{EvalArgs, GaussianArgs, OutArgs};
 use anyhow::bail;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
@@ -36,10 +36,12 @@ pub struct Args {
     gaussian: GaussianArgs,
     #[command(flatten)]
     eval: EvalArgs,
+    #[command(flatten)]
+    set: SetArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut config = MethodConfig::load(&args.config)?;
+    let mut config = MethodConfig::load_with(&args.config, &args.set.overrides()?)?;
     let evaluation = args.eval.evaluation()?;
     let bars = Bars::new();
     let options = args.gaussian.options(&mut config, &bars, &evaluation)?;

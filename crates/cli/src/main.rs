@@ -4,6 +4,7 @@
 //! ([`progress::Bars`]) and calls `prism-domain` or `prism-recon`; no algorithm lives here.
 
 mod ablate;
+mod args;
 mod bench;
 mod info;
 mod progress;

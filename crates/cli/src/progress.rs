@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle, TermLike};
 use prism_domain::observe::{Level, Observer};
 use std::fmt;
 use std::io::{self, IsTerminal, Write};
-use std::sync::Mutex;
+use std::sync::{Mutex, Once};
 use std::time::{Duration, Instant};
 
 /// Minimum time between two progress lines in a log.
@@ -24,18 +24,21 @@ const SPINNER: &str = "{spinner} [{elapsed_precise}] {msg}";
 pub struct Bars {
     bar: ProgressBar,
     phase: Mutex<String>,
+    /// The bar is drawn from the first phase on (a command that fails before any phase, or
+    /// finishes in none, leaves no empty spinner line in a log).
+    shown: Once,
 }
 
 impl Bars {
     pub fn new() -> Self {
-        let bar = ProgressBar::with_draw_target(None, target());
+        let bar = ProgressBar::hidden();
         if let Ok(style) = ProgressStyle::with_template(SPINNER) {
             bar.set_style(style);
         }
-        bar.enable_steady_tick(Duration::from_millis(200));
         Bars {
             bar,
             phase: Mutex::new(String::new()),
+            shown: Once::new(),
         }
     }
 
@@ -61,6 +64,10 @@ impl Observer for Bars {
         self.bar.set_position(0);
         self.bar.reset_eta();
         self.bar.set_message(name.to_string());
+        self.shown.call_once(|| {
+            self.bar.set_draw_target(target());
+            self.bar.enable_steady_tick(Duration::from_millis(200));
+        });
         *self.phase.lock().unwrap_or_else(|e| e.into_inner()) = name.to_string();
     }
 

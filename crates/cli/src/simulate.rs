@@ -1,9 +1,11 @@
-//! `prism simulate <config.yaml> -o <scene_dir>`.
+//! `prism simulate <config.yaml> -o <scene_dir> [--set key=value …]`.
 
+use crate::args::SetArgs;
 use crate::progress::Bars;
 use anyhow::Context;
 use prism_domain::observe::Observer;
-use prism_domain::simulate::{SimulateConfig, simulate};
+use prism_domain::simulate::{SimulateConfig, simulate_file};
+use prism_domain::yaml::Overrides;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -15,19 +17,23 @@ pub struct Args {
     /// files are replaced, other files in the directory are kept).
     #[arg(short, long)]
     output: PathBuf,
-    /// Use the paper's resolution (256³ volume, 512² detector), keeping every physical size.
+    /// Use the paper's resolution (256³ volume, 512² detector), keeping every physical size
+    /// (the same as three `--set` overrides of `geometry.volume.n` and `geometry.detector`).
     #[arg(long)]
     paper_scale: bool,
+    #[command(flatten)]
+    set: SetArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut config = SimulateConfig::load(&args.config)?;
+    let mut overrides = Overrides::default();
     if args.paper_scale {
-        config = config.at_paper_scale();
+        overrides = SimulateConfig::paper_scale();
     }
+    let overrides = overrides.then(&args.set.overrides()?);
     let start = Instant::now();
     let bars = Bars::new();
-    let scene = simulate(&config, Some(&args.config), &bars)?;
+    let scene = simulate_file(&args.config, &overrides, &bars)?;
     bars.phase(&format!("writing {}", args.output.display()), 0);
     scene
         .save(&args.output)

@@ -4,6 +4,7 @@
 use crate::classic::{ClassicConfig, ClassicMethod};
 use crate::gaussian::{DeviceChoice, GaussianConfig, GaussianMethod};
 use crate::{Error, Result};
+use prism_domain::yaml::Overrides;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -104,9 +105,24 @@ impl MethodConfig {
 
     /// Read and parse a YAML file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self> {
+        Self::load_with(path, &Overrides::default())
+    }
+
+    /// Read a YAML file, apply `--set` overrides, parse and validate; errors name the file, the
+    /// field, and the override when it set that field.
+    pub fn load_with(path: impl AsRef<Path>, overrides: &Overrides) -> Result<Self> {
         let path = path.as_ref();
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        Self::from_yaml(&text, path)
+        if overrides.is_empty() {
+            return Self::from_yaml(&text, path);
+        }
+        let value = overrides.apply_to_text(&text, path)?;
+        let text =
+            serde_yaml_ng::to_string(&value).map_err(|e| Error::field(path, ".", e.to_string()))?;
+        Self::from_yaml(&text, path).map_err(|e| match e {
+            Error::Domain(d) => Error::Domain(overrides.explain(d)),
+            other => other,
+        })
     }
 
     pub fn method(&self) -> Method {

@@ -277,6 +277,9 @@ pub struct Provenance {
     pub generator: String,
     /// The configuration text it ran with (verbatim).
     pub config: String,
+    /// `--set key=value` overrides applied on top of `config`, in order.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub overrides: Vec<String>,
     /// Source data sets or files (e.g. a TCIA collection, an R²-Gaussian case folder).
     pub source_data: Vec<String>,
     /// Licence and acknowledgement lines that must travel with the data.

@@ -21,6 +21,7 @@ use crate::phantom::{MaterialVolumes, SpectralPhantom};
 use crate::physics::{ChannelSpec, NoiseModel, add_noise};
 use crate::projector::Joseph;
 use crate::scene::{Channel, Provenance, Scene, SpectralCoordinate, Split, normalise_tau};
+use crate::yaml::Overrides;
 use crate::{Error, Result};
 use ndarray::{Array2, Array3, Array4, Axis, s};
 use rand::{Rng, SeedableRng};
@@ -171,7 +172,13 @@ impl GeometrySpec {
 impl SimulateConfig {
     /// Read a config file; errors name the file.
     pub fn load(path: &Path) -> Result<Self> {
-        let mut cfg: SimulateConfig = crate::yaml::read(path)?;
+        Self::load_with(path, &Overrides::default())
+    }
+
+    /// Read a config file with `--set` overrides applied; errors name the file (and the override
+    /// when an overridden field is wrong). A relative HU volume path is relative to the file.
+    pub fn load_with(path: &Path, overrides: &Overrides) -> Result<Self> {
+        let mut cfg: SimulateConfig = crate::yaml::read_with(path, overrides)?;
         if let ObjectSpec::Hu { path: p, .. } = &mut cfg.object
             && p.is_relative()
         {
@@ -180,12 +187,15 @@ impl SimulateConfig {
         Ok(cfg)
     }
 
-    /// The paper's resolution (256³ volume, 512² detector) with every physical size unchanged.
-    pub fn at_paper_scale(mut self) -> Self {
-        self.geometry.volume.n = 256;
-        self.geometry.detector.rows = 512;
-        self.geometry.detector.cols = 512;
-        self
+    /// The overrides that give the paper's resolution (256³ volume, 512² detector) with every
+    /// physical size unchanged (`prism simulate --paper-scale`).
+    pub fn paper_scale() -> Overrides {
+        Overrides::parse([
+            "geometry.volume.n=256",
+            "geometry.detector.rows=512",
+            "geometry.detector.cols=512",
+        ])
+        .expect("valid overrides")
     }
 
     /// Number of training views.
@@ -273,6 +283,15 @@ pub fn coordinate_of(spec: &ChannelSpec) -> SpectralCoordinate {
         }
         ChannelSpec::Window { lo_kev, hi_kev, .. } => SpectralCoordinate::Window { lo_kev, hi_kev },
     }
+}
+
+/// Simulate the scene of a config file with `overrides` applied; the provenance records the
+/// file's text and the overrides.
+pub fn simulate_file(path: &Path, overrides: &Overrides, observer: &dyn Observer) -> Result<Scene> {
+    let cfg = SimulateConfig::load_with(path, overrides)?;
+    let mut scene = simulate(&cfg, Some(path), observer)?;
+    scene.provenance.overrides = overrides.texts();
+    Ok(scene)
 }
 
 /// Simulate the scene a config describes. `config_path` (when given) is recorded verbatim in the

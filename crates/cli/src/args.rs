@@ -1,0 +1,149 @@
+//! Arguments shared by several subcommands: where a run goes, how it is scored, where a Gaussian
+//! method runs, and `--set` overrides of a config.
+
+use crate::progress::Bars;
+use prism_domain::yaml::Overrides;
+use prism_recon::MethodConfig;
+use prism_recon::evaluate::lpips::Lpips;
+use prism_recon::evaluate::{Evaluation, Protocol, SliceAxes};
+use prism_recon::gaussian::{DeviceChoice, cpu_device};
+use prism_recon::pipeline::{RunDir, RunOptions};
+use std::path::PathBuf;
+
+/// `--set key.path=value` overrides of a YAML config.
+#[derive(clap::Args)]
+pub struct SetArgs {
+    /// Override a config value: a dotted key (a number indexes a list) and a YAML value, e.g.
+    /// `--set geometry.views=13 --set channels.0.kev=50`; repeatable, later ones win; recorded in
+    /// the output (scene.yaml provenance, a run's config.resolved.yaml).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+}
+
+impl SetArgs {
+    pub fn overrides(&self) -> anyhow::Result<Overrides> {
+        Ok(Overrides::parse(&self.set)?)
+    }
+}
+
+/// How the volumes are scored (`docs/metrics.md`).
+#[derive(clap::Args)]
+pub struct EvalArgs {
+    /// Evaluation grid: `native` (the reconstruction's own) or an edge length `n` (both volumes
+    /// resampled trilinearly to n³; the paper evaluates on 256³).
+    #[arg(long = "eval-grid", value_name = "native|N", default_value = "native")]
+    pub grid: String,
+    /// Slices of the slice-averaged metrics: `axial` (z) or `all` (z, y and x).
+    #[arg(long = "eval-slices", value_enum, default_value = "axial")]
+    pub slices: SlicesArg,
+    /// LPIPS weights (safetensors made by scripts/lpips_weights.py); without them the LPIPS
+    /// fields of metrics.json are null.
+    #[arg(long = "lpips-weights", value_name = "FILE")]
+    pub lpips_weights: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum SlicesArg {
+    Axial,
+    All,
+}
+
+impl EvalArgs {
+    /// The evaluation these arguments ask for (LPIPS on the CPU).
+    pub fn evaluation(&self) -> anyhow::Result<Evaluation> {
+        let grid = match self.grid.as_str() {
+            "native" => None,
+            n => match n.parse::<usize>() {
+                Ok(n) if (2..=4096).contains(&n) => Some(n),
+                _ => anyhow::bail!(
+                    "--eval-grid: expected `native` or an edge length in 2..=4096, got `{n}`"
+                ),
+            },
+        };
+        let slices = match self.slices {
+            SlicesArg::Axial => SliceAxes::Axial,
+            SlicesArg::All => SliceAxes::All,
+        };
+        let lpips = match &self.lpips_weights {
+            Some(p) => Some((Lpips::load(p, &cpu_device())?, p.clone())),
+            None => None,
+        };
+        Ok(Evaluation {
+            protocol: Protocol { grid, slices },
+            lpips,
+        })
+    }
+}
+
+/// Where a Gaussian method runs and what it starts from.
+#[derive(clap::Args)]
+pub struct GaussianArgs {
+    /// Compute device of a Gaussian method (overrides the config's `device`): `cpu`, or `wgpu`
+    /// in a prism built with `--features wgpu` (a GPU, or Mesa's lavapipe without one).
+    #[arg(long = "device")]
+    pub device: Option<DeviceArg>,
+    /// `4dsg` / `4dsg-stage1` only: skip stage 1 and continue from its checkpoint
+    /// (`geometry.safetensors`, or a run directory holding one, e.g. a `4dsg` run or an
+    /// ablation's `geometry/`) written with the same scene and stage-1 settings; the result is
+    /// that of an uninterrupted run.
+    #[arg(long = "from-geometry", value_name = "RUN_DIR|FILE")]
+    pub from_geometry: Option<PathBuf>,
+}
+
+impl GaussianArgs {
+    /// Run options for `config` (its device overridden by `--device`), reporting to `observer`
+    /// and scoring under `evaluation`.
+    pub fn options<'a>(
+        &'a self,
+        config: &mut MethodConfig,
+        observer: &'a Bars,
+        evaluation: &'a Evaluation,
+    ) -> anyhow::Result<RunOptions<'a>> {
+        if let Some(d) = self.device {
+            config.set_device(d.choice());
+        }
+        let options = RunOptions {
+            device: config.device().device()?,
+            from_geometry: self.from_geometry.as_deref(),
+            observer,
+            evaluation,
+        };
+        options.check(config)?;
+        Ok(options)
+    }
+}
+
+/// Where a run is published.
+#[derive(clap::Args)]
+pub struct OutArgs {
+    /// Output directory (a run: `<label>.npy` volumes, `config.resolved.yaml`, `metrics.json`,
+    /// …), written beside it and published when the command succeeds.
+    #[arg(short = 'o', long = "out")]
+    pub out: PathBuf,
+    /// Replace the run files of a directory that is not empty (files an earlier run did not
+    /// write are kept).
+    #[arg(long)]
+    pub force: bool,
+}
+
+impl OutArgs {
+    pub fn run_dir(&self) -> anyhow::Result<RunDir> {
+        Ok(RunDir::create(&self.out, self.force)?)
+    }
+}
+
+/// `--device` of the Gaussian methods.
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum DeviceArg {
+    Cpu,
+    Wgpu,
+}
+
+impl DeviceArg {
+    pub fn choice(self) -> DeviceChoice {
+        match self {
+            DeviceArg::Cpu => DeviceChoice::Cpu,
+            DeviceArg::Wgpu => DeviceChoice::Wgpu,
+        }
+    }
+}
