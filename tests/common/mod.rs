@@ -17,21 +17,7 @@ pub fn prism(args: &[&str]) -> (bool, String) {
     (o.status.success(), text)
 }
 
-/// A scene config of the built-in phantom (radius 110 mm, cone beam, DSO 1000 mm, DSD 1500 mm,
-/// a 512 mm detector) with `views` training and 2 test views, an `n`³ grid of 256 mm and a
-/// `det`² detector, one monoenergetic channel per entry of `kevs`.
-pub fn phantom_config(name: &str, views: usize, n: usize, det: usize, kevs: &[u32]) -> String {
-    let channels: String = kevs
-        .iter()
-        .map(|k| format!("  - {{ kind: mono, kev: {k} }}\n"))
-        .collect();
-    format!(
-        "name: {name}\ngeometry:\n  beam: cone\n  dso: 1000.0\n  dsd: 1500.0\n  \
-         detector: {{ rows: {det}, cols: {det}, size_mm: [512.0, 512.0] }}\n  \
-         volume: {{ n: {n}, size_mm: 256.0 }}\n  views: {views}\n  test_views: 2\n\
-         object:\n  phantom: {{ radius_mm: 110.0 }}\nchannels:\n{channels}"
-    )
-}
+pub use prism_domain::testing::phantom_config_yaml as phantom_config;
 
 /// `path` as `&str` (the tests' paths are UTF-8).
 pub fn path(p: &std::path::Path) -> &str {

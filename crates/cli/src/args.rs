@@ -140,6 +140,14 @@ pub enum DeviceArg {
 }
 
 impl DeviceArg {
+    /// The argument's spelling on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            DeviceArg::Cpu => "cpu",
+            DeviceArg::Wgpu => "wgpu",
+        }
+    }
+
     pub fn choice(self) -> DeviceChoice {
         match self {
             DeviceArg::Cpu => DeviceChoice::Cpu,

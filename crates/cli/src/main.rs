@@ -6,6 +6,7 @@
 mod ablate;
 mod args;
 mod bench;
+mod experiment;
 mod info;
 mod progress;
 mod query;
@@ -47,6 +48,9 @@ enum Command {
     Ablate(ablate::Args),
     /// Benchmarks that print one JSON object (`prism bench classic`).
     Bench(bench::Args),
+    /// An experiment suite (configs/suites/): methods × scenes × views × noise × seeds, resumable,
+    /// with results.csv, a report in the paper's table layout and figures; `--slurm` for clusters.
+    Experiment(experiment::Args),
 }
 
 fn main() -> ExitCode {
@@ -59,6 +63,7 @@ fn main() -> ExitCode {
         Command::Report(args) => report::run(args),
         Command::Ablate(args) => ablate::run(args),
         Command::Bench(args) => bench::run(args),
+        Command::Experiment(args) => experiment::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -6,6 +6,22 @@ use ndarray::Array3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+/// A scene config (YAML) of the built-in phantom (radius 110 mm, cone beam, DSO 1000 mm, DSD
+/// 1500 mm, a 512 mm detector) with `views` training and 2 test views, an `n`³ grid of 256 mm and
+/// a `det`² detector, one monoenergetic channel per entry of `kevs`.
+pub fn phantom_config_yaml(name: &str, views: usize, n: usize, det: usize, kevs: &[u32]) -> String {
+    let channels: String = kevs
+        .iter()
+        .map(|k| format!("  - {{ kind: mono, kev: {k} }}\n"))
+        .collect();
+    format!(
+        "name: {name}\ngeometry:\n  beam: cone\n  dso: 1000.0\n  dsd: 1500.0\n  \
+         detector: {{ rows: {det}, cols: {det}, size_mm: [512.0, 512.0] }}\n  \
+         volume: {{ n: {n}, size_mm: 256.0 }}\n  views: {views}\n  test_views: 2\n\
+         object:\n  phantom: {{ radius_mm: 110.0 }}\nchannels:\n{channels}"
+    )
+}
+
 /// Axis-aligned ellipsoid of constant density `rho` (mm⁻¹).
 #[derive(Clone, Copy, Debug)]
 pub struct Ellipsoid {

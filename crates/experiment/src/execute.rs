@@ -1,0 +1,311 @@
+//! Running a plan's cells, one at a time (timings are only comparable without contention).
+//!
+//! Every cell directory is published atomically, so a directory that exists is finished. Each
+//! carries what it was made from (a scene's provenance: its config text and overrides; a run's
+//! `cell.json`: its scene's, the resolved method config and the evaluation), so a rerun skips
+//! finished cells, and refuses (or with `force`, redoes) cells whose inputs changed since. A cell
+//! that fails is recorded and the others go on.
+
+use crate::plan::{CellKind, Plan};
+use crate::suite::EvaluationSpec;
+use crate::{Error, Result};
+use prism_domain::observe::{Level, Observer};
+use prism_domain::scene::Scene;
+use prism_domain::simulate::simulate_file;
+use prism_recon::MethodConfig;
+use prism_recon::evaluate::Evaluation;
+use prism_recon::gaussian::DeviceChoice;
+use prism_recon::pipeline::ablation::ablate;
+use prism_recon::pipeline::{RunDir, RunOptions, run};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// What every cell is run with.
+pub struct ExecOptions<'a> {
+    pub observer: &'a dyn Observer,
+    /// Where the Gaussian methods run (None: each config's own `device`).
+    pub device: Option<DeviceChoice>,
+    pub evaluation: &'a Evaluation,
+    /// The suite's evaluation settings, recorded in every run cell.
+    pub evaluation_spec: &'a EvaluationSpec,
+    /// Redo cells whose inputs changed (otherwise they are refused).
+    pub force: bool,
+}
+
+/// `cell.json`: what a run cell was made from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CellRecord {
+    pub cell: String,
+    /// The scene config's text and overrides.
+    pub scene_config: String,
+    pub scene_overrides: Vec<String>,
+    /// The method config after overrides and defaults (`config.resolved.yaml`).
+    pub method_config: String,
+    pub evaluation: EvaluationSpec,
+}
+
+pub const CELL_RECORD: &str = "cell.json";
+
+/// Whether a cell's directory holds its result.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CellState {
+    Done,
+    Missing,
+    /// Made from other inputs: what differs.
+    Changed(String),
+}
+
+/// A cell that failed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Failure {
+    pub cell: String,
+    pub error: String,
+}
+
+fn read_text(path: &Path) -> Result<String> {
+    std::fs::read_to_string(path).map_err(|e| Error::io(path, e))
+}
+
+/// The state of scene cell `i` in `out`.
+pub fn scene_state(plan: &Plan, out: &Path, i: usize) -> Result<CellState> {
+    let dir = plan.scene_dir(out, i);
+    let file = dir.join("scene.yaml");
+    if !file.exists() {
+        return Ok(CellState::Missing);
+    }
+    let cell = &plan.scenes[i];
+    let yaml: serde_yaml_ng::Value = serde_yaml_ng::from_str(&read_text(&file)?)
+        .map_err(|e| prism_domain::yaml::error(&file, &e))?;
+    let prov = &yaml["provenance"];
+    let recorded: Vec<String> = prov["overrides"]
+        .as_sequence()
+        .map(|s| {
+            s.iter()
+                .filter_map(|v| v.as_str().map(str::to_string))
+                .collect()
+        })
+        .unwrap_or_default();
+    if prov["config"].as_str() != Some(read_text(&cell.config)?.as_str()) {
+        return Ok(CellState::Changed(format!(
+            "{} changed since the scene was simulated",
+            cell.config.display()
+        )));
+    }
+    if recorded != cell.overrides.texts() {
+        return Ok(CellState::Changed(format!(
+            "simulated with overrides {recorded:?}, the suite now gives {:?}",
+            cell.overrides.texts()
+        )));
+    }
+    Ok(CellState::Done)
+}
+
+/// What run cell `i` is made from now.
+pub fn cell_record(plan: &Plan, i: usize, options: &ExecOptions) -> Result<CellRecord> {
+    let cell = &plan.runs[i];
+    let scene = plan.scene_of(i);
+    let mut config = MethodConfig::load_with(&cell.config, &cell.overrides)?;
+    if let Some(d) = options.device {
+        config.set_device(d);
+    }
+    Ok(CellRecord {
+        cell: cell.key.clone(),
+        scene_config: read_text(&scene.config)?,
+        scene_overrides: scene.overrides.texts(),
+        method_config: config.resolved_yaml()?,
+        evaluation: options.evaluation_spec.clone(),
+    })
+}
+
+/// The state of run cell `i` in `out`.
+pub fn run_state(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Result<CellState> {
+    let dir = plan.run_dir(out, i);
+    if !dir.join(RunDir::MANIFEST).exists() {
+        return Ok(CellState::Missing);
+    }
+    let path = dir.join(CELL_RECORD);
+    if !path.exists() {
+        return Ok(CellState::Changed(format!(
+            "{} was not written by `prism experiment` (no {CELL_RECORD})",
+            dir.display()
+        )));
+    }
+    let recorded: CellRecord = serde_json::from_str(&read_text(&path)?)
+        .map_err(|e| Error::field(&path, ".", e.to_string()))?;
+    let now = cell_record(plan, i, options)?;
+    let what = if recorded.scene_config != now.scene_config
+        || recorded.scene_overrides != now.scene_overrides
+    {
+        "its scene's config or overrides"
+    } else if recorded.method_config != now.method_config {
+        "the method's resolved config"
+    } else if recorded.evaluation != now.evaluation {
+        "the evaluation settings"
+    } else {
+        return Ok(CellState::Done);
+    };
+    Ok(CellState::Changed(format!("{what} changed since it ran")))
+}
+
+/// Simulate scene cell `i` into `out` unless it is done; returns whether it ran.
+pub fn simulate_scene(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Result<bool> {
+    let cell = &plan.scenes[i];
+    match scene_state(plan, out, i)? {
+        CellState::Done => return Ok(false),
+        CellState::Changed(why) if !options.force => {
+            return Err(changed(why));
+        }
+        _ => {}
+    }
+    options.observer.note(
+        Level::Info,
+        &format!("scene {}: simulating {}", cell.key, cell.config.display()),
+    );
+    let scene = simulate_file(&cell.config, &cell.overrides, options.observer)?;
+    let dir = plan.scene_dir(out, i);
+    create_parent(&dir)?;
+    scene.save(&dir)?;
+    Ok(true)
+}
+
+/// Run cell `i` into `out` unless it is done; returns whether it ran.
+pub fn run_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Result<bool> {
+    let cell = &plan.runs[i];
+    match run_state(plan, out, i, options)? {
+        CellState::Done => return Ok(false),
+        CellState::Changed(why) if !options.force => return Err(changed(why)),
+        _ => {}
+    }
+    let scene_dir = plan.scene_dir(out, cell.scene);
+    if scene_state(plan, out, cell.scene)? != CellState::Done {
+        return Err(Error::invalid(
+            "scene",
+            format!(
+                "scene cell `{}` is not simulated (or changed); run its scenes first",
+                plan.scenes[cell.scene].key
+            ),
+        ));
+    }
+    let scene = Scene::load(&scene_dir)?;
+    let mut config = MethodConfig::load_with(&cell.config, &cell.overrides)?;
+    if let Some(d) = options.device {
+        config.set_device(d);
+    }
+    let record = cell_record(plan, i, options)?;
+    let target = plan.run_dir(out, i);
+    create_parent(&target)?;
+    let mut dir = RunDir::create(&target, true)?;
+    dir.write_json(CELL_RECORD, &record)?;
+    let run_options = RunOptions {
+        device: config.device().device()?,
+        from_geometry: None,
+        observer: options.observer,
+        evaluation: options.evaluation,
+    };
+    match (cell.kind, &config) {
+        (CellKind::Run, _) => {
+            run(&config, &scene, dir, &run_options)?;
+        }
+        (CellKind::Ablation(study), MethodConfig::Gaussian(base)) => {
+            ablate(base, study, &scene, dir, &run_options)?;
+        }
+        (CellKind::Ablation(_), _) => {
+            return Err(Error::invalid(
+                "method",
+                "an ablation needs a `4dsg` config",
+            ));
+        }
+    }
+    Ok(true)
+}
+
+fn changed(why: String) -> Error {
+    Error::invalid(
+        "cell",
+        format!("{why}; pass --force to redo it (or remove its directory)"),
+    )
+}
+
+fn create_parent(dir: &Path) -> Result<()> {
+    let parent = dir.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))
+}
+
+/// Which cells to run.
+#[derive(Clone, Debug, Default)]
+pub struct Selection {
+    /// Only these scene cells (indices), or all.
+    pub scenes: Option<Vec<usize>>,
+    /// Only these run cells (indices), or all.
+    pub runs: Option<Vec<usize>>,
+}
+
+/// Summary of [`run_plan`].
+#[derive(Clone, Debug, Default)]
+pub struct Executed {
+    pub ran: usize,
+    pub skipped: usize,
+    pub failures: Vec<Failure>,
+}
+
+/// Run the selected cells of `plan` in order (scenes first), skipping finished ones; failures are
+/// collected, and a run cell whose scene failed is not attempted.
+pub fn run_plan(plan: &Plan, out: &Path, sel: &Selection, options: &ExecOptions) -> Executed {
+    let mut done = Executed::default();
+    let mut failed_scenes = std::collections::BTreeSet::new();
+    let all_scenes: Vec<usize> = (0..plan.scenes.len()).collect();
+    let all_runs: Vec<usize> = (0..plan.runs.len()).collect();
+    let scenes = sel.scenes.as_ref().unwrap_or(&all_scenes);
+    let runs = sel.runs.as_ref().unwrap_or(&all_runs);
+    let tally = |key: &str, r: Result<bool>, done: &mut Executed| match r {
+        Ok(true) => done.ran += 1,
+        Ok(false) => done.skipped += 1,
+        Err(e) => {
+            let e = e.in_cell(key);
+            options.observer.note(Level::Warning, &e.to_string());
+            done.failures.push(Failure {
+                cell: key.to_string(),
+                error: e.to_string(),
+            });
+        }
+    };
+    for &i in scenes {
+        let r = simulate_scene(plan, out, i, options);
+        if r.is_err() {
+            failed_scenes.insert(i);
+        }
+        tally(&format!("scenes/{}", plan.scenes[i].key), r, &mut done);
+    }
+    for (k, &i) in runs.iter().enumerate() {
+        let key = format!("runs/{}", plan.runs[i].key);
+        if failed_scenes.contains(&plan.runs[i].scene) {
+            tally(
+                &key,
+                Err(Error::invalid("scene", "its scene failed")),
+                &mut done,
+            );
+            continue;
+        }
+        options.observer.note(
+            Level::Info,
+            &format!("[{}/{}] {}", k + 1, runs.len(), plan.runs[i].key),
+        );
+        tally(&key, run_cell(plan, out, i, options), &mut done);
+    }
+    done
+}
+
+/// `failures.json` under the output: the failures of the last run (removed when none).
+pub fn record_failures(out: &Path, failures: &[Failure]) -> Result<PathBuf> {
+    let path = out.join("failures.json");
+    if failures.is_empty() {
+        if path.exists() {
+            std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
+        }
+    } else {
+        let json = serde_json::to_string_pretty(failures)
+            .map_err(|e| Error::field(&path, ".", e.to_string()))?;
+        std::fs::write(&path, json + "\n").map_err(|e| Error::io(&path, e))?;
+    }
+    Ok(path)
+}

@@ -1,0 +1,204 @@
+//! `results.csv`, `report.md` and `figures/` of a suite's output directory, from whatever cells
+//! have finished (missing ones are listed, never guessed). Every figure is written as PNG and
+//! SVG; `report.md` embeds the PNGs.
+
+mod pictures;
+mod sections;
+pub mod table;
+
+use crate::execute::Failure;
+use crate::plan::Plan;
+use crate::results::{Row, collect, write_csv};
+use crate::suite::{LoadedSuite, StudyKind};
+use crate::{Error, Result};
+use prism_domain::observe::Observer;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+pub const REPORT: &str = "report.md";
+pub const RESULTS: &str = "results.csv";
+pub const FIGURES: &str = "figures";
+
+/// What [`write_report`] wrote.
+#[derive(Clone, Debug, Default)]
+pub struct Written {
+    pub report: PathBuf,
+    pub results: PathBuf,
+    pub figures: Vec<PathBuf>,
+    /// Cells without results.
+    pub missing: Vec<String>,
+}
+
+/// What the sections draw from.
+pub(crate) struct Context<'a> {
+    pub loaded: &'a LoadedSuite,
+    pub plan: &'a Plan,
+    pub out: &'a Path,
+    pub rows: &'a [Row],
+    pub figures: Vec<PathBuf>,
+}
+
+impl<'a> Context<'a> {
+    /// `figures/<name>` (without extension) under the output directory.
+    pub fn figure_stem(&self, name: &str) -> PathBuf {
+        self.out.join(FIGURES).join(name)
+    }
+
+    /// Record a saved figure and return the Markdown that embeds its PNG.
+    pub fn embed(&mut self, paths: [PathBuf; 2], alt: &str) -> String {
+        let rel = paths[0]
+            .strip_prefix(self.out)
+            .unwrap_or(&paths[0])
+            .display()
+            .to_string();
+        let svg = paths[1]
+            .strip_prefix(self.out)
+            .unwrap_or(&paths[1])
+            .display()
+            .to_string();
+        self.figures.extend(paths);
+        format!("![{alt}]({rel})\n\n*{alt}* ([SVG]({svg}))\n\n")
+    }
+
+    /// The palette index of a suite method (stable across figures).
+    pub fn colour(&self, method: &str) -> usize {
+        self.loaded
+            .suite
+            .methods
+            .keys()
+            .position(|k| k == method)
+            .unwrap_or(0)
+    }
+
+    /// The rows of study `name`.
+    pub fn study_rows(&self, name: &str) -> Vec<&'a Row> {
+        self.rows.iter().filter(|r| r.study == name).collect()
+    }
+}
+
+/// Write `results.csv`, the figures and `report.md` under `out` from the finished cells of `plan`;
+/// `failures` (of the run that just ended, if any) are listed in the report.
+pub fn write_report(
+    loaded: &LoadedSuite,
+    plan: &Plan,
+    out: &Path,
+    failures: &[Failure],
+    observer: &dyn Observer,
+) -> Result<Written> {
+    let suite = &loaded.suite;
+    let (rows, missing) = collect(suite, plan, out)?;
+    let results = out.join(RESULTS);
+    write_csv(&results, &rows)?;
+    let fig_dir = out.join(FIGURES);
+    std::fs::create_dir_all(&fig_dir).map_err(|e| Error::io(&fig_dir, e))?;
+    let mut ctx = Context {
+        loaded,
+        plan,
+        out,
+        rows: &rows,
+        figures: Vec::new(),
+    };
+    let mut md = header(&ctx);
+    for (i, st) in plan.studies.iter().enumerate() {
+        observer.phase(&format!("report: study {}", st.spec.name), 0);
+        let _ = writeln!(
+            md,
+            "## Study `{}` ({})\n\n{}\n",
+            st.spec.name,
+            st.spec.kind.name(),
+            st.spec.description.trim()
+        );
+        let section = match st.spec.kind {
+            StudyKind::Table | StudyKind::Noise => sections::table(&mut ctx, i),
+            StudyKind::Channels => sections::channels(&mut ctx, i),
+            StudyKind::Freeze | StudyKind::CurveModel => sections::ablation(&mut ctx, i),
+            StudyKind::Holdout => sections::holdout(&mut ctx, i),
+        };
+        md.push_str(&section?);
+    }
+    if !missing.is_empty() || !failures.is_empty() {
+        md.push_str("## Cells without results\n\n");
+        for f in failures {
+            let _ = writeln!(md, "- failed: `{}`: {}", f.cell, f.error);
+        }
+        for m in &missing {
+            if !failures.iter().any(|f| f.cell.ends_with(m.as_str())) {
+                let _ = writeln!(md, "- not run: `runs/{m}`");
+            }
+        }
+        md.push('\n');
+    }
+    let report = out.join(REPORT);
+    std::fs::write(&report, md).map_err(|e| Error::io(&report, e))?;
+    Ok(Written {
+        report,
+        results,
+        figures: ctx.figures,
+        missing,
+    })
+}
+
+/// The report's head: the suite, how it was run, the regime of every scene, the protocol.
+fn header(ctx: &Context) -> String {
+    let s = &ctx.loaded.suite;
+    let mut md = format!("# Experiment suite `{}`\n\n{}\n\n", s.name, s.description.trim());
+    let _ = writeln!(
+        md,
+        "Written by `prism {}` from `{}`{}. Every cell is an ordinary run directory under `runs/` \
+         (its `metrics.json`, `log.jsonl`, `config.resolved.yaml`), every scene a scene directory \
+         under `scenes/`; `results.csv` has one row per channel of every run. Times are training \
+         seconds (evaluation excluded) of runs made one at a time on {} CPU threads{}.\n",
+        env!("CARGO_PKG_VERSION"),
+        ctx.loaded.file.display(),
+        if ctx.loaded.overrides.is_empty() {
+            String::new()
+        } else {
+            format!(" with `--set {}`", ctx.loaded.overrides.texts().join(" --set "))
+        },
+        std::thread::available_parallelism().map_or(0, |n| n.get()),
+        match std::env::var("SLURM_JOB_ID") {
+            Ok(id) => format!(" (Slurm job {id})"),
+            Err(_) => String::new(),
+        }
+    );
+    md.push_str("**Scenes** (grid, training views, channels; the `undersampled` regime gives round(50·n/256) views to an n³ grid, the paper's angular undersampling at 256³ with 50 views):\n\n");
+    md.push_str("| Cell | Scene | Grid | Views | Noise | Seed | Channels |\n|---|---|---|---:|---|---:|---:|\n");
+    for c in &ctx.plan.scenes {
+        let _ = writeln!(
+            md,
+            "| `{}` | {} | {}³ | {} | {} | {} | {} |",
+            c.key,
+            s.scene_label(&c.scene),
+            c.n,
+            c.views,
+            c.noise,
+            c.seed,
+            c.channels
+        );
+    }
+    let e = &s.evaluation;
+    let _ = writeln!(
+        md,
+        "\n**Evaluation** (`docs/metrics.md`): 3-D PSNR and SSIM of each channel's volume normalised by \
+         its reference's maximum, on the {} grid; LPIPS {} ({}). Means are over the fitted channels.\n",
+        match e.grid {
+            Some(n) => format!("resized {n}³"),
+            None => "native".to_string(),
+        },
+        if e.all_slices {
+            "over slices along every axis"
+        } else {
+            "over axial slices"
+        },
+        match &e.lpips {
+            Some(p) => format!("weights {}", p.display()),
+            None => "not computed: the suite names no LPIPS weights (`evaluation.lpips`)".into(),
+        }
+    );
+    if s.scenes.values().any(|sc| {
+        std::fs::read_to_string(&sc.config).is_ok_and(|t| t.contains("TCIA"))
+    }) {
+        md.push_str("*Data used in this work were obtained from The Cancer Imaging Archive (TCIA), collections CPTAC-PDA, CPTAC-LSCC and TCGA-OV.*\n\n");
+    }
+    md
+}
