@@ -245,7 +245,9 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
                 .filter(|&i| plan.runs[i].key.contains(text.as_str()))
                 .collect();
             let mut scenes: Vec<usize> = runs.iter().map(|&i| plan.runs[i].scene).collect();
-            scenes.extend((0..plan.scenes.len()).filter(|&i| plan.scenes[i].key.contains(text.as_str())));
+            scenes.extend(
+                (0..plan.scenes.len()).filter(|&i| plan.scenes[i].key.contains(text.as_str())),
+            );
             scenes.sort_unstable();
             scenes.dedup();
             Selection {
@@ -267,7 +269,10 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
     );
     summary(&w, plan.runs.len());
     if !executed.failures.is_empty() {
-        bars.note(Level::Warning, "some cells failed (see failures.json and the report)");
+        bars.note(
+            Level::Warning,
+            "some cells failed (see failures.json and the report)",
+        );
         bail!("{} cells failed", executed.failures.len());
     }
     Ok(())
@@ -299,7 +304,11 @@ fn dry_run(plan: &Plan, out: &Path, options: &ExecOptions) -> anyhow::Result<()>
     }
     println!("{} run cells:", plan.runs.len());
     for (i, c) in plan.runs.iter().enumerate() {
-        println!("  [{i}] runs/{}  {}", c.key, state(run_state(plan, out, i, options)?));
+        println!(
+            "  [{i}] runs/{}  {}",
+            c.key,
+            state(run_state(plan, out, i, options)?)
+        );
     }
     Ok(())
 }

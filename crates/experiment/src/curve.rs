@@ -106,7 +106,11 @@ impl Curve {
         for w in c.windows(2) {
             let ((t0, p0), (t1, p1)) = (w[0], w[1]);
             if seconds <= t1 {
-                let f = if t1 > t0 { (seconds - t0) / (t1 - t0) } else { 1.0 };
+                let f = if t1 > t0 {
+                    (seconds - t0) / (t1 - t0)
+                } else {
+                    1.0
+                };
                 return Some(p0 + f * (p1 - p0));
             }
         }

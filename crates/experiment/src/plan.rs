@@ -125,12 +125,12 @@ impl Plan {
                             let si = match scene_index.get(&key) {
                                 Some(&si) => si,
                                 None => {
-                                    let overrides = base
-                                        .then(&Overrides::parse(&noise.set)?)
-                                        .then(&Overrides::parse([
+                                    let overrides = base.then(&Overrides::parse(&noise.set)?).then(
+                                        &Overrides::parse([
                                             format!("geometry.views={views}"),
                                             format!("seed={seed}"),
-                                        ])?);
+                                        ])?,
+                                    );
                                     let c = SimulateConfig::load_with(&spec.config, &overrides)
                                         .map_err(|e| Error::from(e).in_cell(&key))?;
                                     scenes.push(SceneCell {
@@ -160,7 +160,8 @@ impl Plan {
                                         })?;
                                     methods.insert(method, c.method());
                                 }
-                                if kind != CellKind::Run && methods[method.as_str()] != Method::FourDsg
+                                if kind != CellKind::Run
+                                    && methods[method.as_str()] != Method::FourDsg
                                 {
                                     return Err(Error::invalid(
                                         field("methods"),
@@ -317,7 +318,10 @@ mod tests {
         let mut s = suite(dir.path());
         s.suite.studies[2].methods = vec!["sart".into()];
         let e = Plan::new(&s).unwrap_err().to_string();
-        assert!(e.contains("studies[2].methods") && e.contains("`sart` is `sart`"), "{e}");
+        assert!(
+            e.contains("studies[2].methods") && e.contains("`sart` is `sart`"),
+            "{e}"
+        );
         assert!(e.contains("s.yaml"), "{e}");
     }
 }

@@ -188,8 +188,7 @@ fn rows_of(suite: &Suite, study: &str, p: &StudyPoint, r: &RunResult, out: &Path
 
 /// Write `rows` as CSV (a header, empty fields for absent values).
 pub fn write_csv(path: &Path, rows: &[Row]) -> Result<()> {
-    let mut w = csv::Writer::from_path(path)
-        .map_err(|e| Error::field(path, ".", e.to_string()))?;
+    let mut w = csv::Writer::from_path(path).map_err(|e| Error::field(path, ".", e.to_string()))?;
     for r in rows {
         w.serialize(r)
             .map_err(|e| Error::field(path, ".", e.to_string()))?;

@@ -92,7 +92,12 @@ fn script(
 }
 
 /// Write the scripts for `plan` under `<out>/slurm/` and, with `opts.submit`, submit them.
-pub fn submit(loaded: &LoadedSuite, plan: &Plan, out: &Path, opts: &SlurmOptions) -> Result<Submission> {
+pub fn submit(
+    loaded: &LoadedSuite,
+    plan: &Plan,
+    out: &Path,
+    opts: &SlurmOptions,
+) -> Result<Submission> {
     let dir = out.join("slurm");
     let logs = dir.join("logs");
     std::fs::create_dir_all(&logs).map_err(|e| Error::io(&logs, e))?;
@@ -194,8 +199,8 @@ pub fn submit(loaded: &LoadedSuite, plan: &Plan, out: &Path, opts: &SlurmOptions
     }
     let sub = Submission { scripts, jobs };
     let path = dir.join("jobs.json");
-    let json = serde_json::to_string_pretty(&sub)
-        .map_err(|e| Error::field(&path, ".", e.to_string()))?;
+    let json =
+        serde_json::to_string_pretty(&sub).map_err(|e| Error::field(&path, ".", e.to_string()))?;
     std::fs::write(&path, json + "\n").map_err(|e| Error::io(&path, e))?;
     Ok(sub)
 }

@@ -262,7 +262,10 @@ impl Suite {
         for (i, st) in self.studies.iter().enumerate() {
             let f = |x: &str| format!("studies[{i}].{x}");
             if !key_ok(&st.name) || !names.insert(&st.name) {
-                return bad(f("name"), format!("`{}`: unique, a directory name", st.name));
+                return bad(
+                    f("name"),
+                    format!("`{}`: unique, a directory name", st.name),
+                );
             }
             for (axis, empty) in [
                 ("scenes", st.scenes.is_empty()),
@@ -296,14 +299,20 @@ impl Suite {
                     ),
                 );
             }
-            if let Some(v) = st.views.iter().find(|v| matches!(v, ViewsSpec::Count(c) if *c < 2))
+            if let Some(v) = st
+                .views
+                .iter()
+                .find(|v| matches!(v, ViewsSpec::Count(c) if *c < 2))
             {
                 return bad(f("views"), format!("{v:?}: at least 2 views"));
             }
             let mut levels = std::collections::BTreeSet::new();
             for n in &st.noise {
                 if !key_ok(&n.name) || !levels.insert(&n.name) {
-                    return bad(f("noise"), format!("`{}`: unique, a directory name", n.name));
+                    return bad(
+                        f("noise"),
+                        format!("`{}`: unique, a directory name", n.name),
+                    );
                 }
                 Overrides::parse(&n.set).map_err(|e| e.under(&f("noise")))?;
             }
@@ -362,8 +371,16 @@ mod tests {
     #[test]
     fn bad_suites_name_the_field() {
         for (text, set, needle) in [
-            (SUITE, "studies.0.scenes=[b]", "`b` is not a key of `scenes`"),
-            (SUITE, "studies.0.methods=[fdk]", "`fdk` is not a key of `methods`"),
+            (
+                SUITE,
+                "studies.0.scenes=[b]",
+                "`b` is not a key of `scenes`",
+            ),
+            (
+                SUITE,
+                "studies.0.methods=[fdk]",
+                "`fdk` is not a key of `methods`",
+            ),
             (SUITE, "studies.0.views=[1]", "at least 2 views"),
             (SUITE, "studies.0.views=[many]", "studies[0].views"),
             (SUITE, "studies.0.methods=[sart, sart]", "listed twice"),

@@ -150,7 +150,10 @@ impl Draw for Lines {
                 if s.dashed {
                     for k in 0..3 {
                         legend
-                            .draw(&PathElement::new(vec![(x + k * 10, y), (x + k * 10 + 6, y)], style))
+                            .draw(&PathElement::new(
+                                vec![(x + k * 10, y), (x + k * 10 + 6, y)],
+                                style,
+                            ))
                             .map_err(msg)?;
                     }
                 } else {
@@ -288,7 +291,10 @@ impl Draw for Bars {
     }
 
     fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
-        let values = self.series.iter().flat_map(|s| s.2.iter().flatten().copied());
+        let values = self
+            .series
+            .iter()
+            .flat_map(|s| s.2.iter().flatten().copied());
         let (lo, hi) = range(values, false);
         let hi = hi + (hi - lo) * 0.08; // room for the value labels
         let n = self.categories.len().max(1) as f64;
@@ -338,7 +344,11 @@ impl Draw for Bars {
                 .draw_series(vals.iter().enumerate().filter_map(|(i, v)| {
                     v.map(|v| {
                         let x = i as f64 + x0;
-                        Text::new(format!("{v:.2}"), (x, v), font(11).pos(Pos::new(HPos::Left, VPos::Bottom)))
+                        Text::new(
+                            format!("{v:.2}"),
+                            (x, v),
+                            font(11).pos(Pos::new(HPos::Left, VPos::Bottom)),
+                        )
                     })
                 }))
                 .map_err(msg)?;

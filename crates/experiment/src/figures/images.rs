@@ -92,7 +92,12 @@ impl Grid {
     fn size(&self) -> (usize, usize) {
         let (cw, ch) = self.cell();
         let cols = self.rows.iter().map(|r| r.1.len()).max().unwrap_or(0);
-        let text = self.title.chars().count().max(self.note.chars().count() * 7 / 10) * 10;
+        let text = self
+            .title
+            .chars()
+            .count()
+            .max(self.note.chars().count() * 7 / 10)
+            * 10;
         (
             (LABEL_W + cols * (cw + GAP) + GAP).max(text + 20),
             TITLE_H + self.rows.len() * (ch + CAPTION_H + GAP) + GAP,
@@ -135,7 +140,15 @@ impl Grid {
                     size: 12,
                     text: t.caption.clone(),
                 });
-                blit(&mut rgb, w, x0, y0 + CAPTION_H, t.image.view(), t.map, self.scale);
+                blit(
+                    &mut rgb,
+                    w,
+                    x0,
+                    y0 + CAPTION_H,
+                    t.image.view(),
+                    t.map,
+                    self.scale,
+                );
             }
         }
         (rgb, w, h, texts)
@@ -241,7 +254,11 @@ mod tests {
         assert_eq!(d.rgb(0.0), [255, 255, 255]);
         assert_eq!(d.rgb(-3.0), [33, 102, 172]);
         assert_eq!(d.rgb(1.0), [178, 24, 43]);
-        assert_eq!(g.rgb(f32::NAN), [255, 0, 255], "non-finite values stand out");
+        assert_eq!(
+            g.rgb(f32::NAN),
+            [255, 0, 255],
+            "non-finite values stand out"
+        );
     }
 
     #[test]
@@ -265,7 +282,11 @@ mod tests {
         let (rgb, w, _, _) = grid.compose();
         let at = |x: usize, y: usize| &rgb[(y * w + x) * 3..(y * w + x) * 3 + 3];
         let (x0, y0) = (LABEL_W, TITLE_H + CAPTION_H);
-        assert_eq!(at(x0 + 4, y0 + 2), [255, 255, 255], "the bright pixel, upscaled");
+        assert_eq!(
+            at(x0 + 4, y0 + 2),
+            [255, 255, 255],
+            "the bright pixel, upscaled"
+        );
         assert_eq!(at(x0 + 5, y0 + 3), [255, 255, 255]);
         assert_eq!(at(x0 + 6, y0 + 2), [0, 0, 0]);
         assert_eq!(at(x0, y0), [0, 0, 0]);

@@ -64,10 +64,13 @@ pub fn save(stem: &Path, figure: &impl Draw) -> Result<[PathBuf; 2]> {
 
 /// Encode an RGB8 buffer (`w·h·3` bytes, rows top to bottom) as a PNG file.
 pub fn write_png(path: &Path, rgb: &[u8], w: u32, h: u32) -> Result<()> {
-    std::fs::write(path, png_bytes(rgb, w, h).map_err(|m| Error::Figure {
-        path: path.to_path_buf(),
-        message: m,
-    })?)
+    std::fs::write(
+        path,
+        png_bytes(rgb, w, h).map_err(|m| Error::Figure {
+            path: path.to_path_buf(),
+            message: m,
+        })?,
+    )
     .map_err(|e| Error::io(path, e))
 }
 

@@ -141,7 +141,11 @@ pub fn write_report(
 /// The report's head: the suite, how it was run, the regime of every scene, the protocol.
 fn header(ctx: &Context) -> String {
     let s = &ctx.loaded.suite;
-    let mut md = format!("# Experiment suite `{}`\n\n{}\n\n", s.name, s.description.trim());
+    let mut md = format!(
+        "# Experiment suite `{}`\n\n{}\n\n",
+        s.name,
+        s.description.trim()
+    );
     let _ = writeln!(
         md,
         "Written by `prism {}` from `{}`{}. Every cell is an ordinary run directory under `runs/` \
@@ -153,7 +157,10 @@ fn header(ctx: &Context) -> String {
         if ctx.loaded.overrides.is_empty() {
             String::new()
         } else {
-            format!(" with `--set {}`", ctx.loaded.overrides.texts().join(" --set "))
+            format!(
+                " with `--set {}`",
+                ctx.loaded.overrides.texts().join(" --set ")
+            )
         },
         std::thread::available_parallelism().map_or(0, |n| n.get()),
         match std::env::var("SLURM_JOB_ID") {
@@ -195,9 +202,10 @@ fn header(ctx: &Context) -> String {
             None => "not computed: the suite names no LPIPS weights (`evaluation.lpips`)".into(),
         }
     );
-    if s.scenes.values().any(|sc| {
-        std::fs::read_to_string(&sc.config).is_ok_and(|t| t.contains("TCIA"))
-    }) {
+    if s.scenes
+        .values()
+        .any(|sc| std::fs::read_to_string(&sc.config).is_ok_and(|t| t.contains("TCIA")))
+    {
         md.push_str("*Data used in this work were obtained from The Cancer Imaging Archive (TCIA), collections CPTAC-PDA, CPTAC-LSCC and TCGA-OV.*\n\n");
     }
     md

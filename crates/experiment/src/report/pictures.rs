@@ -83,7 +83,10 @@ pub(crate) fn slices(
             .map(|s| s.as_ref().map(|s| s - &reference))
             .collect();
         let emax = quantile(
-            errors.iter().flatten().flat_map(|e| e.iter().map(|v| v.abs())),
+            errors
+                .iter()
+                .flatten()
+                .flat_map(|e| e.iter().map(|v| v.abs())),
             0.99,
         )
         .max(1e-6);
@@ -118,8 +121,12 @@ pub(crate) fn slices(
         rows,
         scale,
     };
-    let paths = grid.save(&ctx.figure_stem(&format!("{}-v{views}-{noise}-{scene}-slices", st.spec.name)))?;
-    Ok(ctx.embed(paths, &format!("{scene_label}: slices and errors of every method")))
+    let paths =
+        grid.save(&ctx.figure_stem(&format!("{}-v{views}-{noise}-{scene}-slices", st.spec.name)))?;
+    Ok(ctx.embed(
+        paths,
+        &format!("{scene_label}: slices and errors of every method"),
+    ))
 }
 
 /// The held-out channels of a run: reference, predicted and residual projections at up to three
@@ -174,7 +181,11 @@ pub(crate) fn holdout(ctx: &mut Context, p: &StudyPoint) -> Result<String> {
             .iter()
             .zip(residuals)
             .map(|(&v, res)| {
-                let kind = if sc.test_views().contains(&v) { "test" } else { "training" };
+                let kind = if sc.test_views().contains(&v) {
+                    "test"
+                } else {
+                    "training"
+                };
                 (
                     format!("view {v} ({kind})"),
                     vec![
@@ -213,7 +224,10 @@ pub(crate) fn holdout(ctx: &mut Context, p: &StudyPoint) -> Result<String> {
         };
         let stem = format!("{}-{}-{}", p.scene, p.method, h.label);
         let paths = grid.save(&ctx.figure_stem(&format!("holdout-{stem}-projections")))?;
-        md.push_str(&ctx.embed(paths, &format!("{scene_label}: unobserved channel {}", h.label)));
+        md.push_str(&ctx.embed(
+            paths,
+            &format!("{scene_label}: unobserved channel {}", h.label),
+        ));
         // Projection PSNR (R²-Gaussian's per-view normalisation) at every view.
         let params = SsimParams::default();
         let mut test = Vec::new();
@@ -244,10 +258,16 @@ pub(crate) fn holdout(ctx: &mut Context, p: &StudyPoint) -> Result<String> {
                 ..Panel::default()
             }],
         };
-        let paths = save(&ctx.figure_stem(&format!("holdout-{stem}-psnr-views")), &fig)?;
+        let paths = save(
+            &ctx.figure_stem(&format!("holdout-{stem}-psnr-views")),
+            &fig,
+        )?;
         md.push_str(&ctx.embed(
             paths,
-            &format!("{scene_label}: projection PSNR of {} at every view", h.label),
+            &format!(
+                "{scene_label}: projection PSNR of {} at every view",
+                h.label
+            ),
         ));
     }
     Ok(md)

@@ -25,14 +25,15 @@ fn groups(ctx: &Context, i: usize) -> Vec<(usize, String)> {
     g
 }
 
-/// The first method of study `i` that is `m`.
-fn first_of(ctx: &Context, i: usize, m: Method) -> Option<String> {
+/// The methods of study `i` that are `m`, in study order.
+fn all_of(ctx: &Context, i: usize, m: Method) -> Vec<String> {
     ctx.plan.studies[i]
         .spec
         .methods
         .iter()
-        .find(|k| ctx.plan.methods.get(*k) == Some(&m))
+        .filter(|k| ctx.plan.methods.get(*k) == Some(&m))
         .cloned()
+        .collect()
 }
 
 fn mean_row<'a>(rows: &[&'a Row], p: &StudyPoint) -> Option<&'a Row> {
@@ -56,8 +57,8 @@ pub(crate) fn table(ctx: &mut Context, i: usize) -> Result<String> {
     let spec = ctx.plan.studies[i].spec.clone();
     let suite = &ctx.loaded.suite;
     let rows = ctx.study_rows(&spec.name);
-    let four = first_of(ctx, i, Method::FourDsg);
-    let r2 = first_of(ctx, i, Method::R2gs);
+    let four = all_of(ctx, i, Method::FourDsg);
+    let r2 = all_of(ctx, i, Method::R2gs).into_iter().next();
     let mut md = String::new();
     let groups = groups(ctx, i);
     for (views, noise) in &groups {
@@ -69,11 +70,13 @@ pub(crate) fn table(ctx: &mut Context, i: usize) -> Result<String> {
         let t = Table::new(suite, &spec.scenes, &spec.methods, &sel);
         let _ = writeln!(md, "### {views} views, noise `{noise}`\n\n{}", t.markdown());
         let _ = writeln!(md, "Training time:\n\n{}", t.times_markdown());
-        if let (Some(a), Some(b)) = (&four, &r2)
-            && let Some(m) = t.margins_markdown(a, b)
-        {
-            let _ = writeln!(md, "{} against {}:\n\n{m}", label(ctx, a), label(ctx, b));
-            md.push_str(&equal_time(ctx, i, *views, noise, a, b));
+        for a in &four {
+            if let Some(b) = &r2
+                && let Some(m) = t.margins_markdown(a, b)
+            {
+                let _ = writeln!(md, "{} against {}:\n\n{m}", label(ctx, a), label(ctx, b));
+                md.push_str(&equal_time(ctx, i, *views, noise, a, b));
+            }
         }
         if spec.kind == StudyKind::Table {
             md.push_str(&psnr_time(ctx, i, *views, noise)?);
@@ -159,9 +162,11 @@ fn psnr_time(ctx: &mut Context, i: usize, views: usize, noise: &str) -> Result<S
     let mut panels = Vec::new();
     for scene in &st.spec.scenes {
         let mut series = Vec::new();
-        for p in st.points.iter().filter(|p| {
-            &p.scene == scene && p.views == views && p.noise == noise && p.seed == seed
-        }) {
+        for p in st
+            .points
+            .iter()
+            .filter(|p| &p.scene == scene && p.views == views && p.noise == noise && p.seed == seed)
+        {
             let Some(r) = mean_row(&rows, p) else {
                 continue;
             };
@@ -169,7 +174,11 @@ fn psnr_time(ctx: &mut Context, i: usize, views: usize, noise: &str) -> Result<S
             let name = label(ctx, &p.method);
             let curve = Curve::load(&ctx.plan.run_dir(ctx.out, p.run))?;
             if curve.mean.is_empty() {
-                series.push(Series::points(name, c, vec![(r.wall_s, r.psnr.unwrap_or(0.0))]));
+                series.push(Series::points(
+                    name,
+                    c,
+                    vec![(r.wall_s, r.psnr.unwrap_or(0.0))],
+                ));
             } else {
                 if !curve.structural.is_empty() {
                     series.push(Series {
@@ -193,9 +202,7 @@ fn psnr_time(ctx: &mut Context, i: usize, views: usize, noise: &str) -> Result<S
         });
     }
     let fig = Lines {
-        title: format!(
-            "PSNR against training time, {views} views, noise {noise}, seed {seed}"
-        ),
+        title: format!("PSNR against training time, {views} views, noise {noise}, seed {seed}"),
         cols: panels.len().clamp(1, 3),
         panel: (440, 330),
         panels,
@@ -219,7 +226,10 @@ fn per_channel(ctx: &Context, sel: &[&Row]) -> String {
         "<details><summary>PSNR (dB) per channel</summary>\n\n| Scene | Method | Seed | Channels |\n|---|---|---:|---|\n",
     );
     let mut seen = Vec::new();
-    for r in sel.iter().filter(|r| r.channel == "mean" && r.variant.is_empty()) {
+    for r in sel
+        .iter()
+        .filter(|r| r.channel == "mean" && r.variant.is_empty())
+    {
         let key = (&r.scene, &r.method, r.seed);
         if seen.contains(&key) {
             continue;
@@ -228,7 +238,10 @@ fn per_channel(ctx: &Context, sel: &[&Row]) -> String {
         let chans: Vec<String> = sel
             .iter()
             .filter(|c| {
-                c.scene == r.scene && c.method == r.method && c.seed == r.seed && c.channel != "mean"
+                c.scene == r.scene
+                    && c.method == r.method
+                    && c.seed == r.seed
+                    && c.channel != "mean"
             })
             .map(|c| {
                 format!(
@@ -314,14 +327,21 @@ pub(crate) fn channels(ctx: &mut Context, i: usize) -> Result<String> {
         let mut pts: Vec<(usize, f64, f64)> = Vec::new();
         for p in st.points.iter().filter(|p| &p.method == m) {
             if let Some(r) = mean_row(&rows, p) {
-                pts.push((ctx.plan.scene_of(p.run).channels, r.wall_s, r.psnr.unwrap_or(f64::NAN)));
+                pts.push((
+                    ctx.plan.scene_of(p.run).channels,
+                    r.wall_s,
+                    r.psnr.unwrap_or(f64::NAN),
+                ));
             }
         }
         pts.sort_by_key(|q| q.0);
         by_method.push((m.clone(), pts));
     }
     let counts: Vec<usize> = {
-        let mut c: Vec<usize> = by_method.iter().flat_map(|m| m.1.iter().map(|q| q.0)).collect();
+        let mut c: Vec<usize> = by_method
+            .iter()
+            .flat_map(|m| m.1.iter().map(|q| q.0))
+            .collect();
         c.sort_unstable();
         c.dedup();
         c
@@ -345,8 +365,13 @@ pub(crate) fn channels(ctx: &mut Context, i: usize) -> Result<String> {
         }
         md.push('\n');
     }
-    if let (Some(a), Some(b)) = (first_of(ctx, i, Method::FourDsg), first_of(ctx, i, Method::R2gs))
-    {
+    let r2 = all_of(ctx, i, Method::R2gs).into_iter().next();
+    let pairs: Vec<(String, String)> = all_of(ctx, i, Method::FourDsg)
+        .into_iter()
+        .filter_map(|a| r2.clone().map(|b| (a, b)))
+        .collect();
+    md.push('\n');
+    for (a, b) in pairs {
         let time = |k: &str, c: usize| {
             by_method
                 .iter()
@@ -354,8 +379,7 @@ pub(crate) fn channels(ctx: &mut Context, i: usize) -> Result<String> {
                 .and_then(|m| m.1.iter().find(|q| q.0 == c))
                 .map(|q| q.1)
         };
-        md.push_str("\nTime ratio ");
-        let _ = write!(md, "{} / {}:", label(ctx, &a), label(ctx, &b));
+        let _ = write!(md, "Time ratio {} / {}:", label(ctx, &a), label(ctx, &b));
         for c in &counts {
             if let (Some(x), Some(y)) = (time(&a, *c), time(&b, *c)) {
                 let _ = write!(md, " {c} channels {:.2}×;", x / y);
@@ -400,8 +424,14 @@ pub(crate) fn channels(ctx: &mut Context, i: usize) -> Result<String> {
             },
         ],
     };
-    let paths = save(&ctx.figure_stem(&format!("{}-time-channels", st.spec.name)), &fig)?;
-    md.push_str(&ctx.embed(paths, "Training time and PSNR against the number of channels"));
+    let paths = save(
+        &ctx.figure_stem(&format!("{}-time-channels", st.spec.name)),
+        &fig,
+    )?;
+    md.push_str(&ctx.embed(
+        paths,
+        "Training time and PSNR against the number of channels",
+    ));
     Ok(md)
 }
 
@@ -411,7 +441,10 @@ pub(crate) fn ablation(ctx: &mut Context, i: usize) -> Result<String> {
     let rows = ctx.study_rows(&st.spec.name);
     let mut md = String::new();
     let mut variants: Vec<String> = Vec::new();
-    for r in rows.iter().filter(|r| r.channel == "mean" && !r.variant.is_empty()) {
+    for r in rows
+        .iter()
+        .filter(|r| r.channel == "mean" && !r.variant.is_empty())
+    {
         if !variants.contains(&r.variant) {
             variants.push(r.variant.clone());
         }
@@ -423,7 +456,10 @@ pub(crate) fn ablation(ctx: &mut Context, i: usize) -> Result<String> {
             let sel: Vec<&Row> = rows
                 .iter()
                 .filter(|r| {
-                    &r.scene == scene && r.views == *views && &r.noise == noise && r.channel == "mean"
+                    &r.scene == scene
+                        && r.views == *views
+                        && &r.noise == noise
+                        && r.channel == "mean"
                 })
                 .copied()
                 .collect();
@@ -496,8 +532,12 @@ pub(crate) fn holdout(ctx: &mut Context, i: usize) -> Result<String> {
     for p in &st.points {
         let mean = mean_row(&rows, p).and_then(|r| r.psnr);
         for r in rows.iter().filter(|r| {
-            r.held_out && r.scene == p.scene && r.method == p.method && r.seed == p.seed
-                && r.views == p.views && r.noise == p.noise
+            r.held_out
+                && r.scene == p.scene
+                && r.method == p.method
+                && r.seed == p.seed
+                && r.views == p.views
+                && r.noise == p.noise
         }) {
             let _ = writeln!(
                 md,

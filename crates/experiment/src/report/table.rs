@@ -136,7 +136,9 @@ impl Table {
                     } else {
                         vals.iter().cloned().fold(f64::INFINITY, f64::min)
                     };
-                    v[i].as_ref().and_then(f).is_some_and(|x| x == b && vals.len() > 1)
+                    v[i].as_ref()
+                        .and_then(f)
+                        .is_some_and(|x| x == b && vals.len() > 1)
                 };
                 match &v[i] {
                     Some(e) => {
@@ -288,11 +290,20 @@ mod tests {
         assert_eq!((avg.psnr, avg.wall_s), (35.5, 31.0));
         let md = t.markdown();
         assert!(md.contains("| Chest PSNR↑ | SSIM↑ | LPIPS↓ |"), "{md}");
-        assert!(md.contains("**31.00 ± 1.41**") && md.contains("**41.00**"), "{md}");
+        assert!(
+            md.contains("**31.00 ± 1.41**") && md.contains("**41.00**"),
+            "{md}"
+        );
         assert!(md.contains("**35.50**"), "average column: {md}");
         let margins = t.margins_markdown("x", "y").unwrap();
-        assert!(margins.contains("| Chest | 31.00 | 29.00 | +2.00 |"), "{margins}");
-        assert!(margins.contains("| b | 40.00 | 41.00 | -1.00 |"), "{margins}");
+        assert!(
+            margins.contains("| Chest | 31.00 | 29.00 | +2.00 |"),
+            "{margins}"
+        );
+        assert!(
+            margins.contains("| b | 40.00 | 41.00 | -1.00 |"),
+            "{margins}"
+        );
         assert!(margins.contains("0.21×"), "time ratio 31/150: {margins}");
         assert_eq!(seconds(125.0), "2 min 05 s");
     }

@@ -1,0 +1,171 @@
+//! End-to-end: `prism experiment` on a tiny suite (every study kind), its resumption, its refusal
+//! of changed cells, and `collect`.
+
+mod common;
+
+use common::{path, phantom_config, prism};
+use std::path::Path;
+
+/// A suite of every study kind on 16³ phantoms with a few iterations per method.
+pub fn tiny_suite(dir: &Path) -> std::path::PathBuf {
+    std::fs::write(
+        dir.join("p3.yaml"),
+        phantom_config("p3", 30, 16, 24, &[40, 70, 100]),
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("p4.yaml"),
+        phantom_config("p4", 30, 16, 24, &[40, 55, 70, 100]),
+    )
+    .unwrap();
+    std::fs::write(dir.join("fdk.yaml"), "method: fdk\n").unwrap();
+    std::fs::write(dir.join("sart.yaml"), "method: sart\niterations: 1\n").unwrap();
+    let g = "iterations: 12\ninit: { n_points: 500 }\ndensify: { from: 4, until: 8, every: 4 }\neval_every: 6\n";
+    std::fs::write(dir.join("r2gs.yaml"), format!("method: r2gs\n{g}")).unwrap();
+    std::fs::write(
+        dir.join("4dsg.yaml"),
+        format!("method: 4dsg\n{g}stage2: {{ iterations: 6 }}\n"),
+    )
+    .unwrap();
+    let suite = dir.join("suite.yaml");
+    std::fs::write(
+        &suite,
+        r#"name: tiny
+description: Every study kind on 16³ phantoms.
+scenes:
+  p3: { config: p3.yaml, label: Phantom }
+  p2: { config: p3.yaml, set: ["channels=[{kind: mono, kev: 40}, {kind: mono, kev: 100}]"] }
+  p4: { config: p4.yaml }
+methods:
+  fdk: { config: fdk.yaml, label: FDK }
+  sart: { config: sart.yaml, label: SART }
+  r2gs: { config: r2gs.yaml, label: R²-Gaussian }
+  4dsg: { config: 4dsg.yaml, label: 4D-SG }
+  mlp: { config: 4dsg.yaml, label: MLP, set: [stage2.curve_model.kind=mlp] }
+  held: { config: 4dsg.yaml, set: ["holdout_channels=[55keV]"] }
+studies:
+  - { name: table, kind: table, scenes: [p3, p4], methods: [fdk, sart, r2gs, 4dsg], views: [undersampled] }
+  - { name: noise, kind: noise, scenes: [p3], methods: [sart, 4dsg], views: [undersampled],
+      noise: [{name: shipped}, {name: i0-1e4, set: ["noise={i0: 1.0e4}"]}], seeds: [0, 1] }
+  - { name: channels, kind: channels, scenes: [p2, p3], methods: [r2gs, mlp, 4dsg], views: [undersampled] }
+  - { name: curve, kind: curve-model, scenes: [p3], methods: [4dsg], views: [4, 6] }
+  - { name: freeze, kind: freeze, scenes: [p3], methods: [4dsg], views: [undersampled] }
+  - { name: holdout, kind: holdout, scenes: [p4], methods: [held], views: [undersampled] }
+"#,
+    )
+    .unwrap();
+    suite
+}
+
+#[test]
+fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = tiny_suite(dir.path());
+    let out = dir.path().join("out");
+    let (s, o) = (path(&suite), path(&out));
+    let (ok, t) = prism(&["experiment", s, "-o", o, "--dry-run"]);
+    assert!(ok, "{t}");
+    // 16³ → 3 views (undersampled); the noise study's shipped seed-0 cells are the table's.
+    assert!(
+        t.contains("8 scene cells:") && t.contains("scenes/p3-v3-shipped-s0"),
+        "{t}"
+    );
+    assert!(
+        t.contains("runs/p3-v3-shipped-s0/4dsg.freeze  to run"),
+        "{t}"
+    );
+    let (ok, t) = prism(&["experiment", s, "-o", o]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("0 failed") && t.contains("22 of 22 run cells finished"),
+        "{t}"
+    );
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for needle in [
+        "| Method | Phantom PSNR↑ | SSIM↑ | LPIPS↓ | p4 PSNR↑",
+        "| Average PSNR↑",
+        "4D-SG against R²-Gaussian:",
+        "Equal wall time",
+        "(noise)",
+        "i0-1e4",
+        " ± ",
+        "Time ratio 4D-SG / R²-Gaussian:",
+        "PRSD-FFFL",
+        "gscnet",
+        "55keV",
+        "figures/table-v3-shipped-psnr-time.png",
+    ] {
+        assert!(
+            report.contains(needle),
+            "`{needle}` not in the report:\n{report}"
+        );
+    }
+    assert!(!report.contains("Cells without results"), "{report}");
+    for f in [
+        "table-v3-shipped-psnr-time",
+        "table-v3-shipped-p3-slices",
+        "noise-psnr-noise",
+        "channels-time-channels",
+        "curve-p3",
+        "freeze-p3",
+        "holdout-p4-held-55keV-projections",
+        "holdout-p4-held-55keV-psnr-views",
+    ] {
+        for ext in ["png", "svg"] {
+            let p = out.join("figures").join(format!("{f}.{ext}"));
+            assert!(
+                p.is_file() && p.metadata().unwrap().len() > 500,
+                "{}",
+                p.display()
+            );
+        }
+    }
+    // results.csv: a row per channel and a mean row of every run; ablation variants by name.
+    let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
+    let header = csv.lines().next().unwrap();
+    assert!(
+        header.starts_with("study,scene,scene_label,views,noise,seed,method"),
+        "{header}"
+    );
+    assert!(
+        csv.lines()
+            .any(|l| l.starts_with("table,p4,p4,3,shipped,0,4dsg,4D-SG,,mean,false,"))
+    );
+    assert!(
+        csv.lines()
+            .any(|l| l.contains(",held,") && l.contains(",55keV,true,"))
+    );
+    assert_eq!(csv.lines().filter(|l| l.contains(",PRSD-")).count(), 7 * 4);
+    // A second run finds every cell finished.
+    let (ok, t) = prism(&["experiment", s, "-o", o]);
+    assert!(ok && t.contains("0 cells run, 30 already finished"), "{t}");
+    // A changed method config is refused, and redone with --force.
+    std::fs::write(
+        dir.path().join("sart.yaml"),
+        "method: sart\niterations: 2\n",
+    )
+    .unwrap();
+    let (ok, t) = prism(&["experiment", s, "-o", o, "--only", "sart"]);
+    assert!(
+        !ok && t.contains("the method's resolved config changed") && t.contains("--force"),
+        "{t}"
+    );
+    let (ok, t) = prism(&["experiment", s, "-o", o, "--only", "sart", "--force"]);
+    assert!(ok && t.contains("5 cells run"), "{t}");
+    // collect rewrites the report; --set overrides the suite itself (and is validated).
+    let (ok, t) = prism(&["experiment", "collect", s, "-o", o]);
+    assert!(ok && t.contains("22 of 22 run cells finished"), "{t}");
+    let (ok, t) = prism(&[
+        "experiment",
+        s,
+        "-o",
+        o,
+        "--dry-run",
+        "--set",
+        "studies.0.scenes=[p9]",
+    ]);
+    assert!(
+        !ok && t.contains("`p9` is not a key of `scenes`") && t.contains("suite.yaml"),
+        "{t}"
+    );
+}
