@@ -16,8 +16,8 @@ pub enum Error {
         source: std::io::Error,
     },
     /// A value in a file (or in a configuration) is missing, malformed or out of range.
-    /// `field` is a dotted path such as `geometry.detector.pitch_u`.
-    #[error("{}: field `{field}`: {message}", file.display())]
+    /// `field` is a dotted path such as `geometry.detector.pitch_u`; `.` is the whole file.
+    #[error("{}: {}{message}", file.display(), field_label(field))]
     Field {
         file: PathBuf,
         field: String,
@@ -62,6 +62,15 @@ pub fn ensure_shape(field: &str, got: &[usize], want: &[usize], what: &str) -> R
             field,
             format!("shape {got:?} does not match {what} = {want:?}"),
         ))
+    }
+}
+
+/// `field `a.b`: ` for a field path, nothing for the whole file (`.`).
+fn field_label(field: &str) -> String {
+    if field == "." || field.is_empty() {
+        String::new()
+    } else {
+        format!("field `{field}`: ")
     }
 }
 

@@ -218,8 +218,14 @@ impl Overrides {
 fn field_matches(field: &str, message: &str, key: &[String]) -> bool {
     let field = field.replace('[', ".").replace(']', "");
     let joined = key.join(".");
-    let unknown_here = joined == format!("{field}.{}", key[key.len() - 1])
-        && message.contains(&format!("`{}`", key[key.len() - 1]));
+    let last = &key[key.len() - 1];
+    // The section holding the unknown key: `.` (the whole file) for a top-level key.
+    let section = if key.len() == 1 {
+        ".".to_string()
+    } else {
+        key[..key.len() - 1].join(".")
+    };
+    let unknown_here = section == field && message.contains(&format!("unknown field `{last}`"));
     field == joined || field.starts_with(&format!("{joined}.")) || unknown_here
 }
 
@@ -304,6 +310,15 @@ mod tests {
             .to_string();
         assert!(
             e.contains("unknown field `b`") && e.contains("--set s.b=1"),
+            "{e}"
+        );
+        // A misspelt top-level key: the error names the file and the override, not a field.
+        let o = Overrides::parse(["b=1"]).unwrap();
+        let e = parse_with::<Strict>("a: 1\n", Path::new("d.yaml"), &o)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("d.yaml: unknown field `b`") && e.contains("--set b=1"),
             "{e}"
         );
     }
