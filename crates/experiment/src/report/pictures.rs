@@ -140,7 +140,7 @@ pub(crate) fn holdout(ctx: &mut Context, p: &StudyPoint) -> Result<String> {
     if run.holdout.is_empty() {
         return Ok(String::new());
     }
-    let sc = Scene::load(&ctx.plan.scene_dir(ctx.out, ctx.plan.runs[p.run].scene))?;
+    let sc = Scene::load(ctx.plan.scene_dir(ctx.out, ctx.plan.runs[p.run].scene))?;
     let query = Query::open(&RunDir::spectral_model(&dir)?, &cpu_device())?;
     let scene_label = ctx.loaded.suite.scene_label(&p.scene).to_string();
     let mut md = String::new();

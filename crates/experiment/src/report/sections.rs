@@ -317,14 +317,16 @@ fn noise_chart(ctx: &mut Context, i: usize, rows: &[&Row]) -> Result<String> {
     Ok(ctx.embed(paths, "PSNR against the noise level (means over seeds)"))
 }
 
+/// A point of the channel study: (channels, wall seconds, PSNR).
+type ChannelPoint = (usize, f64, f64);
+
 /// Training time and PSNR against the number of channels.
 pub(crate) fn channels(ctx: &mut Context, i: usize) -> Result<String> {
     let st = ctx.plan.studies[i].clone();
     let rows = ctx.study_rows(&st.spec.name);
-    // method → [(channels, seconds, psnr)]
-    let mut by_method: Vec<(String, Vec<(usize, f64, f64)>)> = Vec::new();
+    let mut by_method: Vec<(String, Vec<ChannelPoint>)> = Vec::new();
     for m in &st.spec.methods {
-        let mut pts: Vec<(usize, f64, f64)> = Vec::new();
+        let mut pts: Vec<ChannelPoint> = Vec::new();
         for p in st.points.iter().filter(|p| &p.method == m) {
             if let Some(r) = mean_row(&rows, p) {
                 pts.push((

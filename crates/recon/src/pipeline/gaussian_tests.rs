@@ -563,6 +563,6 @@ fn a_4dsg_run_on_wgpu_follows_the_cpu_run() {
     }
     // Measured ≤ 1e-4 dB apart.
     for (c, g) in cpu.channels.iter().zip(&gpu.channels) {
-        assert!((c.scores.psnr - g.psnr).abs() < 0.01, "{c:?} {g:?}");
+        assert!((c.scores.psnr - g.scores.psnr).abs() < 0.01, "{c:?} {g:?}");
     }
 }
