@@ -169,3 +169,63 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
         "{t}"
     );
 }
+
+/// The shipped suites plan from the repository alone: the CPU suite at 13 views of 64³ (its noise
+/// study sharing the table's head cells), the paper suite at 50 views of 256³; `--study` marks
+/// the other cells as not selected, and an unknown study is refused with the known ones.
+#[test]
+fn the_shipped_suites_plan_in_the_papers_regime() {
+    let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let cpu = repo.join("configs/suites/cpu.yaml");
+    let (ok, t) = prism(&["experiment", path(&cpu), "-o", path(&out), "--dry-run"]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("12 scene cells:")
+            && t.contains("scenes/head-v13-shipped-s0  (64³, 13 views, 3 channels)  to run\n")
+            && t.contains("scenes/ph8-v13-shipped-s0  (64³, 13 views, 8 channels)")
+            && t.contains("45 run cells:")
+            && t.contains("runs/head-v13-i0-1e4-s0/4dsg  to run\n"),
+        "{t}"
+    );
+    let (ok, t) = prism(&[
+        "experiment",
+        path(&cpu),
+        "-o",
+        path(&out),
+        "--dry-run",
+        "--study",
+        "table",
+    ]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("runs/head-v13-shipped-s0/4dsg  to run\n")
+            && t.contains("runs/head-v13-i0-1e4-s0/4dsg  to run (not selected)")
+            && t.contains(
+                "scenes/ph2-v13-shipped-s0  (64³, 13 views, 2 channels)  to run (not selected)"
+            ),
+        "{t}"
+    );
+    let (ok, t) = prism(&[
+        "experiment",
+        path(&cpu),
+        "-o",
+        path(&out),
+        "--study",
+        "tabel",
+    ]);
+    assert!(
+        !ok && t.contains("no study `tabel` (the suite has: table, noise, channels"),
+        "{t}"
+    );
+    let paper = repo.join("configs/suites/paper.yaml");
+    let (ok, t) = prism(&["experiment", path(&paper), "-o", path(&out), "--dry-run"]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("6 scene cells:")
+            && t.contains("scenes/abdomen-v50-shipped-s0  (256³, 50 views, 8 channels)")
+            && t.contains("30 run cells:"),
+        "{t}"
+    );
+}

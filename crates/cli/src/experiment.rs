@@ -67,6 +67,10 @@ struct RunArgs {
     /// Run only the cells whose key contains this text (scenes they need included).
     #[arg(long, value_name = "TEXT")]
     only: Option<String>,
+    /// Run only the cells of this study (repeatable; with `--only`, those of its cells whose
+    /// key contains the text). The report covers every study, with what has finished.
+    #[arg(long, value_name = "NAME")]
+    study: Vec<String>,
     /// Run only scene cell I (a Slurm array task).
     #[arg(long, value_name = "I", conflicts_with = "cell")]
     scene_cell: Option<usize>,
@@ -175,9 +179,10 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
         evaluation_spec: &loaded.suite.evaluation,
         force: a.force,
     };
+    let selection = Selection::of(&plan, a.only.as_deref(), &a.study)?;
     if a.dry_run {
         bars.finish();
-        return dry_run(&plan, out, &options);
+        return dry_run(&plan, out, &options, &selection);
     }
     if a.slurm.slurm {
         let mut pass_on = Vec::new();
@@ -239,24 +244,6 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
         let r = prism_experiment::execute::run_cell(&plan, out, i, &options);
         return single(r, &format!("runs/{}", plan.runs[i].key));
     }
-    let selection = match &a.only {
-        Some(text) => {
-            let runs: Vec<usize> = (0..plan.runs.len())
-                .filter(|&i| plan.runs[i].key.contains(text.as_str()))
-                .collect();
-            let mut scenes: Vec<usize> = runs.iter().map(|&i| plan.runs[i].scene).collect();
-            scenes.extend(
-                (0..plan.scenes.len()).filter(|&i| plan.scenes[i].key.contains(text.as_str())),
-            );
-            scenes.sort_unstable();
-            scenes.dedup();
-            Selection {
-                scenes: Some(scenes),
-                runs: Some(runs),
-            }
-        }
-        None => Selection::default(),
-    };
     let executed = run_plan(&plan, out, &selection, &options);
     record_failures(out, &executed.failures)?;
     let w = write_report(&loaded, &plan, out, &executed.failures, &bars)?;
@@ -285,11 +272,23 @@ fn check_index(i: usize, n: usize, flag: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn dry_run(plan: &Plan, out: &Path, options: &ExecOptions) -> anyhow::Result<()> {
+fn dry_run(
+    plan: &Plan,
+    out: &Path,
+    options: &ExecOptions,
+    selection: &Selection,
+) -> anyhow::Result<()> {
     let state = |s: CellState| match s {
         CellState::Done => "done".to_string(),
         CellState::Missing => "to run".to_string(),
         CellState::Changed(why) => format!("changed: {why}"),
+    };
+    let mark = |selected: bool, s: String| {
+        if selected {
+            s
+        } else {
+            format!("{s} (not selected)")
+        }
     };
     println!("{} scene cells:", plan.scenes.len());
     for (i, c) in plan.scenes.iter().enumerate() {
@@ -299,7 +298,7 @@ fn dry_run(plan: &Plan, out: &Path, options: &ExecOptions) -> anyhow::Result<()>
             c.n,
             c.views,
             c.channels,
-            state(scene_state(plan, out, i)?)
+            mark(selection.has_scene(i), state(scene_state(plan, out, i)?))
         );
     }
     println!("{} run cells:", plan.runs.len());
@@ -307,7 +306,10 @@ fn dry_run(plan: &Plan, out: &Path, options: &ExecOptions) -> anyhow::Result<()>
         println!(
             "  [{i}] runs/{}  {}",
             c.key,
-            state(run_state(plan, out, i, options)?)
+            mark(
+                selection.has_run(i),
+                state(run_state(plan, out, i, options)?)
+            )
         );
     }
     Ok(())

@@ -240,6 +240,60 @@ pub struct Selection {
     pub runs: Option<Vec<usize>>,
 }
 
+impl Selection {
+    /// The run cells of the studies named `studies` (all studies when empty) whose key
+    /// contains `only` (any key when `None`), and the scene cells they need plus those whose
+    /// key contains `only`. Everything when both are absent.
+    pub fn of(plan: &Plan, only: Option<&str>, studies: &[String]) -> Result<Selection> {
+        if only.is_none() && studies.is_empty() {
+            return Ok(Selection::default());
+        }
+        for name in studies {
+            if !plan.studies.iter().any(|s| &s.spec.name == name) {
+                let known: Vec<&str> = plan.studies.iter().map(|s| s.spec.name.as_str()).collect();
+                return Err(Error::invalid(
+                    "--study",
+                    format!("no study `{name}` (the suite has: {})", known.join(", ")),
+                ));
+            }
+        }
+        let mut in_studies = vec![studies.is_empty(); plan.runs.len()];
+        for st in plan
+            .studies
+            .iter()
+            .filter(|s| studies.contains(&s.spec.name))
+        {
+            for p in &st.points {
+                in_studies[p.run] = true;
+            }
+        }
+        let matches = |key: &str| only.is_none_or(|t| key.contains(t));
+        let runs: Vec<usize> = (0..plan.runs.len())
+            .filter(|&i| in_studies[i] && matches(&plan.runs[i].key))
+            .collect();
+        let mut scenes: Vec<usize> = runs.iter().map(|&i| plan.runs[i].scene).collect();
+        if studies.is_empty() {
+            scenes.extend((0..plan.scenes.len()).filter(|&i| matches(&plan.scenes[i].key)));
+        }
+        scenes.sort_unstable();
+        scenes.dedup();
+        Ok(Selection {
+            scenes: Some(scenes),
+            runs: Some(runs),
+        })
+    }
+
+    /// Whether scene cell `i` is selected.
+    pub fn has_scene(&self, i: usize) -> bool {
+        self.scenes.as_ref().is_none_or(|s| s.contains(&i))
+    }
+
+    /// Whether run cell `i` is selected.
+    pub fn has_run(&self, i: usize) -> bool {
+        self.runs.as_ref().is_none_or(|r| r.contains(&i))
+    }
+}
+
 /// Summary of [`run_plan`].
 #[derive(Clone, Debug, Default)]
 pub struct Executed {
