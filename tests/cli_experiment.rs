@@ -171,7 +171,8 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
 }
 
 /// The shipped suites plan from the repository alone: the CPU suite at 13 views of 64³ (its noise
-/// study sharing the table's head cells), the paper suite at 50 views of 256³; `--study` marks
+/// study sharing the table's head cells; 20 and 50 views for the curve-model study), the paper
+/// suite at 50 views of 256³; `--study` marks
 /// the other cells as not selected, and an unknown study is refused with the known ones.
 #[test]
 fn the_shipped_suites_plan_in_the_papers_regime() {
@@ -182,10 +183,11 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     let (ok, t) = prism(&["experiment", path(&cpu), "-o", path(&out), "--dry-run"]);
     assert!(ok, "{t}");
     assert!(
-        t.contains("12 scene cells:")
+        t.contains("16 scene cells:")
             && t.contains("scenes/head-v13-shipped-s0  (64³, 13 views, 3 channels)  to run\n")
             && t.contains("scenes/ph8-v13-shipped-s0  (64³, 13 views, 8 channels)")
-            && t.contains("45 run cells:")
+            && t.contains("scenes/head-v50-shipped-s0  (64³, 50 views, 3 channels)")
+            && t.contains("55 run cells:")
             && t.contains("runs/head-v13-i0-1e4-s0/4dsg  to run\n"),
         "{t}"
     );
