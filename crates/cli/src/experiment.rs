@@ -159,8 +159,15 @@ fn summary(w: &prism_experiment::report::Written, cells: usize) {
         w.figures.len() / 2,
         w.results.display()
     );
-    if !w.missing.is_empty() {
-        eprintln!("not finished: {}", w.missing.join(", "));
+    const LISTED: usize = 8;
+    match w.missing.len() {
+        0 => {}
+        n if n <= LISTED => eprintln!("not finished: {}", w.missing.join(", ")),
+        n => eprintln!(
+            "not finished: {}, and {} more (listed in the report)",
+            w.missing[..LISTED].join(", "),
+            n - LISTED
+        ),
     }
 }
 
