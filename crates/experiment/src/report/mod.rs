@@ -108,6 +108,12 @@ pub fn write_report(
             st.spec.kind.name(),
             st.spec.description.trim()
         );
+        if ctx.study_rows(&st.spec.name).is_empty() {
+            md.push_str(
+                "No cell of this study has finished yet (see *Cells without results*).\n\n",
+            );
+            continue;
+        }
         let section = match st.spec.kind {
             StudyKind::Table | StudyKind::Noise => sections::table(&mut ctx, i),
             StudyKind::Channels => sections::channels(&mut ctx, i),
