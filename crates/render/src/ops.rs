@@ -134,7 +134,7 @@ mod fusion_shapes {
     #[allow(dead_code)]
     pub fn prepared(means: &Shape, cameras: &[Camera], options: &ProjectOptions) -> Shape {
         #[cfg(feature = "wgpu")]
-        let width = crate::cube::prepared_width(options.mode);
+        let width = crate::cube::layout::prepared_width(options.mode);
         #[cfg(not(feature = "wgpu"))]
         let width = crate::cpu::prepared_width(options.mode);
         Shape::from(vec![cameras.len(), means[0], width])

@@ -6,8 +6,7 @@ use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
 use super::math::{Ray, RayGaussian, exact_ray, factors, quat_backward};
-use super::project::offset;
-use super::types::{Mat3, Params, Rect, Vec3, View, cell_span, densities_finite, finite};
+use super::types::{Mat3, Params, Rect, Vec3, View, cell_span, densities_finite, finite, offset};
 
 /// Floats per [`ExactRecord`].
 pub const EXACT_WIDTH: usize = 19;

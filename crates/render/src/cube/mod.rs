@@ -5,7 +5,7 @@
 //! and every formula is the f32 port of [`crate::gaussian_math`] ([`math`], on the typed values
 //! of [`types`]). The prepared projection state is this backend's own records
 //! ([`project::AffineRecord`], which has the CPU's layout, and [`exact::ExactRecord`];
-//! [`prepared_width`]). Forward passes own one output tile per cube and compact the tile's
+//! [`layout::prepared_width`]). Forward passes own one output tile per cube and compact the tile's
 //! Gaussians in index order ([`culling::stage_chunk`]); backward passes own one Gaussian per unit
 //! and gather its footprint. Neither needs atomics, so the kernels run unchanged on devices
 //! without f32 atomic add and give run-to-run identical results. Nothing is read back to the
@@ -21,6 +21,7 @@
 pub mod culling;
 pub mod exact;
 mod host;
+pub mod layout;
 pub mod math;
 pub mod project;
 pub mod types;
@@ -31,6 +32,7 @@ mod tests;
 
 pub use culling::{CHUNK, PER_UNIT, STEP, stage_chunk, step_bounds_kernel};
 pub use host::pack_cameras;
+use layout::prepared_width;
 
 use burn::backend::tensor::FloatTensor;
 use burn_cubecl::cubecl;
@@ -42,14 +44,6 @@ use crate::options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions}
 use culling::{AFFINE_BOXES, EXACT_BOXES, VOXEL_BOXES, step_bounds};
 use host::{Params, dims, grid_record, linear, upload, voxel_prepare, zeros};
 use project::TILE;
-
-/// Width of one Gaussian's record in this backend's prepared projection state for `mode`.
-pub fn prepared_width(mode: ProjectionMode) -> usize {
-    match mode {
-        ProjectionMode::Affine => project::AFFINE_WIDTH,
-        ProjectionMode::Exact => exact::EXACT_WIDTH,
-    }
-}
 
 impl crate::ops::GaussianOps for CubeBackend {
     fn gaussian_project_prepare(

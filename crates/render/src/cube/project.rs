@@ -19,7 +19,9 @@ use cubecl::prelude::*;
 
 use super::exact::{EXACT_BOX, EXACT_WIDTH, ExactRecord};
 use super::math::{exact_ray, splat, splat_backward};
-use super::types::{GeomGrad, Params, Rect, Vec3, View, cell_span, densities_finite, finite};
+use super::types::{
+    GeomGrad, Params, Rect, Vec3, View, cell_span, densities_finite, finite, offset,
+};
 use super::{CHUNK, PER_UNIT, STEP, stage_chunk};
 
 /// Detector tile edge in pixels (one cube of `TILE²` units per tile).
@@ -95,13 +97,6 @@ impl AffineRecord {
         }
         r
     }
-}
-
-/// Screen offset of view `v`, Gaussian `i` (`[V, K, 2]`).
-#[cube]
-pub(super) fn offset(screen: &Tensor<f32>, v: usize, k: usize, i: usize) -> (f32, f32) {
-    let o = 2 * (v * k + i);
-    (screen[o], screen[o + 1])
 }
 
 #[cube(launch)]

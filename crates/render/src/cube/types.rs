@@ -445,3 +445,10 @@ impl GeomGrad {
         self.quat.store(g_rotations, 4 * i);
     }
 }
+
+/// Screen offset of view `v`, Gaussian `i` (`[V, K, 2]`).
+#[cube]
+pub(super) fn offset(screen: &Tensor<f32>, v: usize, k: usize, i: usize) -> (f32, f32) {
+    let o = 2 * (v * k + i);
+    (screen[o], screen[o + 1])
+}
