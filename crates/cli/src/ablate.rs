@@ -60,6 +60,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (dir, report) = ablate(base, study, &scene, args.out.run_dir()?, &options)?;
     bars.finish();
     print!("{}", markdown(&report));
-    eprintln!("→ {}", dir.join("ablation.json").display());
+    eprintln!(
+        "→ {}",
+        dir.join(prism_recon::pipeline::RunDir::ABLATION).display()
+    );
     Ok(())
 }

@@ -6,6 +6,7 @@ use crate::suite::Suite;
 use crate::{Error, Result};
 use prism_recon::evaluate::Metrics;
 use prism_recon::pipeline::RunDir;
+use prism_recon::pipeline::ablation::AblationReport;
 use prism_recon::query::HoldoutScore;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -21,24 +22,14 @@ pub struct RunResult {
     pub holdout: Vec<HoldoutScore>,
 }
 
-fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| Error::field(path, ".", e.to_string()))
-}
-
 impl RunResult {
     /// Read a published run directory (`metrics.json`, `holdout.json` when present).
     pub fn load(dir: &Path, variant: Option<String>) -> Result<Self> {
-        let holdout = dir.join(RunDir::HOLDOUT);
         Ok(RunResult {
             dir: dir.to_path_buf(),
             variant,
-            metrics: read_json(&dir.join(RunDir::METRICS))?,
-            holdout: if holdout.exists() {
-                read_json(&holdout)?
-            } else {
-                Vec::new()
-            },
+            metrics: RunDir::read_json(&dir.join(RunDir::METRICS))?,
+            holdout: RunDir::read_holdout(dir)?,
         })
     }
 }
@@ -53,12 +44,11 @@ pub fn point_runs(plan: &Plan, out: &Path, p: &StudyPoint) -> Result<Option<Vec<
     match plan.runs[p.run].kind {
         CellKind::Run => Ok(Some(vec![RunResult::load(&dir, None)?])),
         CellKind::Ablation(_) => {
-            let report: serde_json::Value = read_json(&dir.join("ablation.json"))?;
-            let variants = report["rows"].as_array().cloned().unwrap_or_default();
-            variants
+            let report: AblationReport = RunDir::read_json(&dir.join(RunDir::ABLATION))?;
+            report
+                .rows
                 .iter()
-                .filter_map(|r| r["variant"].as_str())
-                .map(|v| RunResult::load(&dir.join(v), Some(v.to_string())))
+                .map(|r| RunResult::load(&dir.join(&r.variant), Some(r.variant.clone())))
                 .collect::<Result<Vec<_>>>()
                 .map(Some)
         }

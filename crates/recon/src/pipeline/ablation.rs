@@ -20,7 +20,7 @@ use crate::{Error, MethodConfig, Result};
 use prism_domain::observe::Level;
 use prism_domain::scene::Scene;
 use prism_gscnet::CurveModelKind;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
@@ -100,7 +100,7 @@ impl Study {
 }
 
 /// One row of the ablation table.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct AblationRow {
     pub variant: String,
     /// P/R/S/D learnable (L) or frozen (F) in stage 2.
@@ -117,7 +117,7 @@ pub struct AblationRow {
 }
 
 /// Contents of `ablation.json`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct AblationReport {
     pub study: String,
     pub scene: String,
@@ -217,7 +217,7 @@ pub fn ablate(
         stage1_s,
         rows,
     };
-    dir.write_json("ablation.json", &report)?;
+    dir.write_json(RunDir::ABLATION, &report)?;
     dir.write_text("ablation.md", &markdown(&report))?;
     Ok((dir.publish()?, report))
 }

@@ -61,6 +61,8 @@ impl RunDir {
     pub const LOG: &str = "log.jsonl";
     pub const TRAIN: &str = "train.json";
     pub const HOLDOUT: &str = "holdout.json";
+    /// An ablation's table (`prism ablate`), beside one run directory per variant.
+    pub const ABLATION: &str = "ablation.json";
     /// 4D-SG's stage-1 checkpoint.
     pub const GEOMETRY: &str = "geometry.safetensors";
     /// The trained model of a spectral run (one model for every channel).
@@ -173,6 +175,23 @@ impl RunDir {
         let json = serde_json::to_string_pretty(value)
             .map_err(|e| Error::field(&path, ".", e.to_string()))?;
         fs::write(&path, json + "\n").map_err(|e| Error::io(&path, e))
+    }
+
+    /// Read a JSON file a run wrote (`metrics.json`, `ablation.json`, …); errors name the file.
+    pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
+        let text = fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        serde_json::from_str(&text).map_err(|e| Error::field(path, ".", e.to_string()))
+    }
+
+    /// The scores of the channels a finished run `dir` predicted without training data
+    /// (`holdout.json`; none when the run held nothing out).
+    pub fn read_holdout(dir: &Path) -> Result<Vec<crate::query::HoldoutScore>> {
+        let path = dir.join(Self::HOLDOUT);
+        if path.exists() {
+            Self::read_json(&path)
+        } else {
+            Ok(Vec::new())
+        }
     }
 
     /// Write `text` to the entry `name`.

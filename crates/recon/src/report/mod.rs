@@ -2,12 +2,10 @@
 //! column pair per run, from each run directory's `metrics.json` (fitted channels) and
 //! `holdout.json` (channels a spectral model predicted without training data).
 
+use crate::Result;
 use crate::evaluate::Metrics;
 use crate::pipeline::RunDir;
-use crate::query::HoldoutScore;
-use crate::{Error, Result};
 use std::fmt::Write as _;
-use std::fs;
 use std::path::{Path, PathBuf};
 
 /// One channel's scores in one run.
@@ -32,15 +30,10 @@ pub struct RunScores {
     pub channels: Vec<ChannelScore>,
 }
 
-fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T> {
-    let text = fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| Error::field(path, ".", e.to_string()))
-}
-
 impl RunScores {
     /// Read `dir/metrics.json` and, when present, `dir/holdout.json`.
     pub fn load(dir: &Path) -> Result<Self> {
-        let metrics: Metrics = read_json(&dir.join(RunDir::METRICS))?;
+        let metrics: Metrics = RunDir::read_json(&dir.join(RunDir::METRICS))?;
         let volume = |label: &str| dir.join(RunDir::volume_file(label));
         let mut channels: Vec<ChannelScore> = metrics
             .channels
@@ -53,17 +46,17 @@ impl RunScores {
                 volume: volume(&c.label),
             })
             .collect();
-        let holdout = dir.join(RunDir::HOLDOUT);
-        if holdout.exists() {
-            let scores: Vec<HoldoutScore> = read_json(&holdout)?;
-            channels.extend(scores.into_iter().map(|s| ChannelScore {
-                volume: volume(&s.label),
-                label: s.label,
-                psnr: s.volume.as_ref().map(|v| v.psnr),
-                ssim: s.volume.as_ref().map(|v| v.ssim),
-                held_out: true,
-            }));
-        }
+        channels.extend(
+            RunDir::read_holdout(dir)?
+                .into_iter()
+                .map(|s| ChannelScore {
+                    volume: volume(&s.label),
+                    label: s.label,
+                    psnr: s.volume.as_ref().map(|v| v.psnr),
+                    ssim: s.volume.as_ref().map(|v| v.ssim),
+                    held_out: true,
+                }),
+        );
         Ok(RunScores {
             dir: dir.to_path_buf(),
             method: metrics.method,
