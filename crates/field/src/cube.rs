@@ -1,0 +1,262 @@
+//! CubeCL kernels of the hash-grid encoder for Burn's `CubeBackend` (wgpu; lavapipe without a
+//! GPU). One unit per (point, level); the same indexing as [`crate::grid`] and the same clamping
+//! as [`crate::cpu`].
+//!
+//! The backward scatter-adds into the table with `Atomic<f32>::fetch_add`: rows are shared by many
+//! points (hash collisions included), so a gather formulation would have to search every point.
+//! Devices without f32 atomic add (WebGPU in browsers) are refused with a message. Float atomics
+//! add in an unspecified order, so gradients agree with the CPU's to rounding, not bit for bit.
+
+// Kernels reject NaN through negated comparisons; CubeCL has no `div_ceil`.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::manual_div_ceil)]
+
+use burn::backend::ops::FloatTensorOps;
+use burn::backend::tensor::FloatTensor;
+use burn::tensor::{DType, Shape, TensorData};
+use burn_cubecl::cubecl;
+use burn_cubecl::{
+    CubeBackend, kernel::into_contiguous, ops::numeric::zeros_client, tensor::CubeTensor,
+};
+use cubecl::prelude::*;
+
+use crate::grid::{HashGrid, PRIMES};
+use crate::ops::FieldOps;
+
+/// Units per cube.
+const CUBE: u32 = 256;
+/// Floats per level record: scale, vertices per axis, dense flag.
+const LEVEL_WIDTH: usize = 3;
+
+/// The first table row of level `l` (the sizes of the levels before it).
+#[cube]
+fn level_offset(levels: &Tensor<f32>, l: usize, cap: u32) -> u32 {
+    let mut offset = 0u32;
+    for j in 0..l {
+        let res = u32::cast_from(levels[j * LEVEL_WIDTH + 1]);
+        if levels[j * LEVEL_WIDTH + 2] > 0.5f32 {
+            offset += res * res * res;
+        } else {
+            offset += cap;
+        }
+    }
+    offset
+}
+
+/// One axis of a point: the lower cell vertex and the fraction above it.
+#[cube]
+fn axis(x: f32, scale: f32, res: u32) -> (u32, f32) {
+    let mut v = x;
+    // Non-finite coordinates read as 0 (the comparison is false for ±∞ and NaN; `x − x == 0`
+    // is folded away by shader compilers), then clamp to [0, 1].
+    if !(f32::abs(v) <= 3.0e38f32) {
+        v = 0.0f32;
+    }
+    v = f32::clamp(v, 0.0f32, 1.0f32);
+    let pos = v * scale + 0.5f32;
+    let c = u32::min(u32::cast_from(f32::floor(pos)), res - 2);
+    (c, pos - f32::cast_from(c))
+}
+
+/// Vertex `(i, j, k)`'s row within its level.
+#[cube]
+fn vertex_row(i: u32, j: u32, k: u32, res: u32, dense: bool, cap: u32) -> u32 {
+    let hashed = (i ^ (j * PRIMES[0]) ^ (k * PRIMES[1])) & (cap - 1);
+    select(dense, i + res * (j + res * k), hashed)
+}
+
+/// The encoding's forward (`out` zeroed by the host).
+#[cube(launch)]
+fn encode_kernel(
+    points: &Tensor<f32>,
+    table: &Tensor<f32>,
+    levels: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+    n: u32,
+    n_levels: u32,
+    cap: u32,
+    #[comptime] features: usize,
+) {
+    let idx = ABSOLUTE_POS;
+    let nl = n_levels as usize;
+    if idx >= n as usize * nl {
+        terminate!();
+    }
+    let (i, l) = (idx / nl, idx % nl);
+    let scale = levels[l * LEVEL_WIDTH];
+    let res = u32::cast_from(levels[l * LEVEL_WIDTH + 1]);
+    let dense = levels[l * LEVEL_WIDTH + 2] > 0.5f32;
+    let offset = level_offset(levels, l, cap);
+    let (cx, fx) = axis(points[3 * i], scale, res);
+    let (cy, fy) = axis(points[3 * i + 1], scale, res);
+    let (cz, fz) = axis(points[3 * i + 2], scale, res);
+    let base = i * nl * features + l * features;
+    for c in 0..8u32 {
+        let (ux, uy, uz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+        let w = select(ux == 1, fx, 1.0f32 - fx)
+            * select(uy == 1, fy, 1.0f32 - fy)
+            * select(uz == 1, fz, 1.0f32 - fz);
+        let row = (offset + vertex_row(cx + ux, cy + uy, cz + uz, res, dense, cap)) as usize;
+        #[unroll]
+        for f in 0..features {
+            out[base + f] += w * table[row * features + f];
+        }
+    }
+}
+
+/// The table's gradient: scatter-add of `grad` through the same weights (`out` zeroed).
+#[cube(launch)]
+fn encode_backward_kernel(
+    points: &Tensor<f32>,
+    grad: &Tensor<f32>,
+    levels: &Tensor<f32>,
+    out: &mut Tensor<Atomic<f32>>,
+    n: u32,
+    n_levels: u32,
+    cap: u32,
+    #[comptime] features: usize,
+) {
+    let idx = ABSOLUTE_POS;
+    let nl = n_levels as usize;
+    if idx >= n as usize * nl {
+        terminate!();
+    }
+    let (i, l) = (idx / nl, idx % nl);
+    let scale = levels[l * LEVEL_WIDTH];
+    let res = u32::cast_from(levels[l * LEVEL_WIDTH + 1]);
+    let dense = levels[l * LEVEL_WIDTH + 2] > 0.5f32;
+    let offset = level_offset(levels, l, cap);
+    let (cx, fx) = axis(points[3 * i], scale, res);
+    let (cy, fy) = axis(points[3 * i + 1], scale, res);
+    let (cz, fz) = axis(points[3 * i + 2], scale, res);
+    let base = i * nl * features + l * features;
+    for c in 0..8u32 {
+        let (ux, uy, uz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+        let w = select(ux == 1, fx, 1.0f32 - fx)
+            * select(uy == 1, fy, 1.0f32 - fy)
+            * select(uz == 1, fz, 1.0f32 - fz);
+        let row = (offset + vertex_row(cx + ux, cy + uy, cz + uz, res, dense, cap)) as usize;
+        #[unroll]
+        for f in 0..features {
+            let g = grad[base + f];
+            if g != 0.0f32 {
+                out[row * features + f].fetch_add(w * g);
+            }
+        }
+    }
+}
+
+/// Levels as `[L · LEVEL_WIDTH]` floats (exact: dense levels have `res³ ≤ 2^24`).
+fn pack_levels(grid: &HashGrid) -> Vec<f32> {
+    grid.levels
+        .iter()
+        .flat_map(|l| [l.scale, l.res as f32, if l.dense { 1.0 } else { 0.0 }])
+        .collect()
+}
+
+/// The hashed levels' table size (dense levels only: any power of two; unused).
+fn hash_cap(grid: &HashGrid) -> u32 {
+    grid.levels
+        .iter()
+        .find(|l| !l.dense)
+        .map_or(1 << 24, |l| l.size)
+}
+
+fn zeros(like: &CubeTensor, shape: Vec<usize>) -> CubeTensor {
+    zeros_client(
+        like.client.clone(),
+        like.device.clone(),
+        Shape::from(shape),
+        DType::F32,
+    )
+}
+
+fn launch_size(n: usize) -> (CubeCount, CubeDim) {
+    let n = u32::try_from(n).expect("kernel item count fits in u32");
+    (
+        CubeCount::Static(n.div_ceil(CUBE).max(1), 1, 1),
+        CubeDim::new_1d(CUBE),
+    )
+}
+
+/// Whether the device adds f32 atomically.
+fn supports_f32_atomic_add(t: &CubeTensor) -> bool {
+    use cubecl::features::AtomicUsage;
+    use cubecl::ir::{ElemType, FloatKind, Type};
+    t.client
+        .properties()
+        .atomic_type_usage(Type::atomic(Type::new(ElemType::Float(FloatKind::F32))))
+        .contains(AtomicUsage::Add)
+}
+
+impl FieldOps for CubeBackend {
+    fn hash_grid_encode(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        grid: HashGrid,
+    ) -> FloatTensor<Self> {
+        let (points, table) = (into_contiguous(points), into_contiguous(table));
+        let n = points.meta.shape()[0];
+        let out = zeros(&points, vec![n, grid.width()]);
+        if n == 0 {
+            return out;
+        }
+        let levels = pack_levels(&grid);
+        let levels = CubeBackend::float_from_data(
+            TensorData::new(levels.clone(), [levels.len()]),
+            &points.device,
+        );
+        let (count, dim) = launch_size(n * grid.levels.len());
+        encode_kernel::launch(
+            &points.client.clone(),
+            count,
+            dim,
+            points.into_tensor_arg(),
+            table.into_tensor_arg(),
+            levels.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            n as u32,
+            grid.levels.len() as u32,
+            hash_cap(&grid),
+            grid.features,
+        );
+        out
+    }
+
+    fn hash_grid_encode_backward(
+        points: FloatTensor<Self>,
+        grid: HashGrid,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        let (points, grad) = (into_contiguous(points), into_contiguous(grad));
+        let n = points.meta.shape()[0];
+        let out = zeros(&points, vec![grid.rows(), grid.features]);
+        if n == 0 {
+            return out;
+        }
+        assert!(
+            supports_f32_atomic_add(&points),
+            "the hash-grid encoder's backward needs f32 atomic add, which this wgpu device does \
+             not offer (train NAF on the CPU)"
+        );
+        let levels = pack_levels(&grid);
+        let levels = CubeBackend::float_from_data(
+            TensorData::new(levels.clone(), [levels.len()]),
+            &points.device,
+        );
+        let (count, dim) = launch_size(n * grid.levels.len());
+        encode_backward_kernel::launch(
+            &points.client.clone(),
+            count,
+            dim,
+            points.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            levels.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            n as u32,
+            grid.levels.len() as u32,
+            hash_cap(&grid),
+            grid.features,
+        );
+        out
+    }
+}
