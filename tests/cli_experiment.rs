@@ -187,8 +187,9 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/head-v13-shipped-s0  (64³, 13 views, 3 channels)  to run\n")
             && t.contains("scenes/ph8-v13-shipped-s0  (64³, 13 views, 8 channels)")
             && t.contains("scenes/head-v50-shipped-s0  (64³, 50 views, 3 channels)")
-            && t.contains("55 run cells:")
-            && t.contains("runs/head-v13-i0-1e4-s0/4dsg  to run\n"),
+            && t.contains("59 run cells:")
+            && t.contains("runs/head-v13-i0-1e4-s0/4dsg  to run\n")
+            && t.contains("runs/ph3-v13-shipped-s0/naf  to run\n"),
         "{t}"
     );
     let (ok, t) = prism(&[
@@ -227,7 +228,8 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     assert!(
         t.contains("6 scene cells:")
             && t.contains("scenes/abdomen-v50-shipped-s0  (256³, 50 views, 8 channels)")
-            && t.contains("30 run cells:"),
+            && t.contains("36 run cells:")
+            && t.contains("runs/chest-v50-shipped-s0/naf  to run\n"),
         "{t}"
     );
 }

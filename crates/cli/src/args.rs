@@ -78,7 +78,7 @@ impl EvalArgs {
 /// Where a Gaussian method runs and what it starts from.
 #[derive(clap::Args)]
 pub struct GaussianArgs {
-    /// Compute device of a Gaussian method (overrides the config's `device`): `cpu`, or `wgpu`
+    /// Compute device of a Gaussian or NAF method (overrides the config's `device`): `cpu`, or `wgpu`
     /// in a prism built with `--features wgpu` (a GPU, or Mesa's lavapipe without one).
     #[arg(long = "device")]
     pub device: Option<DeviceArg>,

@@ -10,6 +10,7 @@
 //! * [`stage1`]: 4D-SG's shared geometry from the structural projections (and its checkpoint);
 //! * [`stage2`]: the spectral stage: GSC-Net or the MLP predicts every Gaussian's density curve
 //!   (or per-channel densities on the fixed geometry);
+//! * [`naf`]: NAF, a hash-grid neural field per channel (the field is `prism-field`);
 //! * [`query`]: the trained curves at any spectral coordinate, held-out channels scored;
 //! * [`evaluate`]: volumes scored against the scene's references (`metrics.json`);
 //! * [`report`]: finished runs side by side (`prism report`);
@@ -25,6 +26,7 @@ pub mod evaluate;
 pub mod gaussian;
 pub mod init;
 pub mod method;
+pub mod naf;
 pub mod pipeline;
 pub mod query;
 pub mod report;

@@ -3,6 +3,7 @@
 
 use crate::classic::{ClassicConfig, ClassicMethod};
 use crate::gaussian::{DeviceChoice, GaussianConfig, GaussianMethod};
+use crate::naf::NafConfig;
 use crate::{Error, Result};
 use prism_domain::yaml::Overrides;
 use serde::{Deserialize, Serialize};
@@ -23,13 +24,17 @@ pub enum Method {
     FourDsgStage1,
     #[serde(rename = "4dsg")]
     FourDsg,
+    #[serde(rename = "naf")]
+    Naf,
 }
 
-/// The two families of methods, each with its configuration type.
+/// The families of methods, each with its configuration type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Family {
     Classic(ClassicMethod),
     Gaussian(GaussianMethod),
+    /// Neural attenuation fields.
+    Naf,
 }
 
 impl Method {
@@ -41,6 +46,7 @@ impl Method {
             Method::R2gs => Family::Gaussian(GaussianMethod::R2gs),
             Method::FourDsgStage1 => Family::Gaussian(GaussianMethod::Stage1),
             Method::FourDsg => Family::Gaussian(GaussianMethod::FourDsg),
+            Method::Naf => Family::Naf,
         }
     }
 
@@ -49,6 +55,7 @@ impl Method {
         match self.family() {
             Family::Classic(m) => m.name(),
             Family::Gaussian(m) => m.name(),
+            Family::Naf => "naf",
         }
     }
 
@@ -83,6 +90,7 @@ impl From<GaussianMethod> for Method {
 pub enum MethodConfig {
     Classic(ClassicConfig),
     Gaussian(Box<GaussianConfig>),
+    Naf(Box<NafConfig>),
 }
 
 impl MethodConfig {
@@ -100,6 +108,7 @@ impl MethodConfig {
             Family::Gaussian(_) => {
                 GaussianConfig::from_yaml(text, file).map(|c| MethodConfig::Gaussian(Box::new(c)))
             }
+            Family::Naf => NafConfig::from_yaml(text, file).map(|c| MethodConfig::Naf(Box::new(c))),
         }
     }
 
@@ -129,6 +138,7 @@ impl MethodConfig {
         match self {
             MethodConfig::Classic(c) => c.method.into(),
             MethodConfig::Gaussian(c) => c.method.into(),
+            MethodConfig::Naf(_) => Method::Naf,
         }
     }
 
@@ -137,14 +147,17 @@ impl MethodConfig {
         match self {
             MethodConfig::Classic(_) => DeviceChoice::Cpu,
             MethodConfig::Gaussian(c) => c.device,
+            MethodConfig::Naf(c) => c.device,
         }
     }
 
-    /// Run a Gaussian method on `device` instead of its configured device (classic methods
-    /// always run on the CPU).
+    /// Run a Gaussian or NAF method on `device` instead of its configured device (classic
+    /// methods always run on the CPU).
     pub fn set_device(&mut self, device: DeviceChoice) {
-        if let MethodConfig::Gaussian(c) = self {
-            c.device = device;
+        match self {
+            MethodConfig::Classic(_) => {}
+            MethodConfig::Gaussian(c) => c.device = device,
+            MethodConfig::Naf(c) => c.device = device,
         }
     }
 
@@ -153,6 +166,7 @@ impl MethodConfig {
         let yaml = match self {
             MethodConfig::Classic(c) => serde_yaml_ng::to_string(&c.resolved()),
             MethodConfig::Gaussian(c) => serde_yaml_ng::to_string(c),
+            MethodConfig::Naf(c) => serde_yaml_ng::to_string(c),
         };
         yaml.map_err(|e| Error::invalid("config", e.to_string()))
     }
@@ -188,6 +202,15 @@ mod tests {
                 &["run.yaml", "curved"],
             ),
             ("method: sart\nfilter: triangle\n", &["run.yaml", "filter"]),
+            (
+                "method: naf\nrays_per_batch: 0\n",
+                &["run.yaml", "rays_per_batch"],
+            ),
+            (
+                "method: naf\nfield: {hash_grid: {levels: 0}}\n",
+                &["run.yaml", "field.hash_grid.levels"],
+            ),
+            ("method: naf\nfield: {depth: 3}\n", &["run.yaml", "depth"]),
         ] {
             let e = MethodConfig::from_yaml(yaml, f).unwrap_err().to_string();
             for n in needles {

@@ -5,6 +5,7 @@
 pub mod ablation;
 mod classic;
 mod gaussian;
+mod naf;
 mod run_dir;
 mod setup;
 
@@ -26,6 +27,7 @@ pub fn run(
     let metrics = match config {
         MethodConfig::Classic(c) => classic::run(c, scene, &mut dir, options)?,
         MethodConfig::Gaussian(c) => gaussian::run(c, scene, &mut dir, options)?,
+        MethodConfig::Naf(c) => naf::run(c, scene, &mut dir, options)?,
     };
     if let Some(m) = &metrics {
         dir.write_json(RunDir::METRICS, m)?;

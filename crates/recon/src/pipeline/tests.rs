@@ -379,3 +379,63 @@ fn config_parsing_names_bad_fields() {
         );
     }
 }
+
+/// NAF end to end on the small phantom: volumes, log and metrics, with a PSNR floor set
+/// against SART on the same scene.
+#[test]
+fn naf_reconstructs_the_phantom_above_a_floor_set_by_sart() {
+    use crate::naf::NafConfig;
+    let sc = scene();
+    let dir = tempfile::tempdir().unwrap();
+    let yaml = "method: naf\niterations: 200\nrays_per_batch: 256\nsamples_per_ray: 40\n\
+                eval_every: 100\nlr: {init: 2.0e-3, gamma: 0.1, every: 1000}\n\
+                field: {width: 16, table_lr_scale: 30.0,\n  \
+                hash_grid: {levels: 6, base_resolution: 4, growth: 1.6, log2_table_size: 12}}\n";
+    let config = MethodConfig::from_yaml(yaml, Path::new("naf.yaml")).unwrap();
+    assert!(
+        matches!(&config, MethodConfig::Naf(c) if c.iterations == 200 && **c != NafConfig::default())
+    );
+    let out = dir.path().join("naf");
+    let naf = run_into(&config, &sc, &out, false)
+        .unwrap()
+        .metrics
+        .unwrap();
+    let sart = run_into(
+        &classic(ClassicMethod::Sart, 3),
+        &sc,
+        &dir.path().join("sart"),
+        false,
+    )
+    .unwrap()
+    .metrics
+    .unwrap();
+    for label in ["40keV", "70keV"] {
+        let v: Array3<f32> = ndarray_npy::read_npy(out.join(format!("{label}.npy"))).unwrap();
+        assert_eq!(v.shape(), &[24, 24, 24]);
+        assert!(v.iter().all(|x| x.is_finite() && *x >= 0.0));
+    }
+    let log = fs::read_to_string(out.join(RunDir::LOG)).unwrap();
+    let records: Vec<serde_json::Value> = log
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(records.len(), 4, "two evaluations per channel");
+    assert!(
+        records
+            .iter()
+            .all(|r| r["stage"] == "naf" && r.get("n_gaussians").is_none())
+    );
+    assert_eq!(records[3]["channel"], "70keV");
+    let json: serde_json::Value =
+        serde_json::from_str(&fs::read_to_string(out.join(RunDir::METRICS)).unwrap()).unwrap();
+    assert_eq!(json["method"], "naf");
+    // Measured: NAF 23.28 dB after 200 iterations vs SART 33.84 dB (3 iterations; 24 views of a
+    // 24³ grid are well sampled, where SART is strong). An empty volume scores ~10 dB, a volume
+    // off by a factor 2 or a mirrored one < 20 dB.
+    assert!(
+        naf.mean.psnr > 21.0 && naf.mean.psnr > sart.mean.psnr - 12.0,
+        "NAF {} dB vs SART {} dB",
+        naf.mean.psnr,
+        sart.mean.psnr
+    );
+}

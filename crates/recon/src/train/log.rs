@@ -56,7 +56,9 @@ pub struct LogRecord {
     /// Seconds since the run started, evaluation excluded.
     pub train_s: f64,
     pub loss: LossTerms,
-    pub n_gaussians: usize,
+    /// Gaussians in the model (absent for methods without Gaussians).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub n_gaussians: Option<usize>,
     /// Mean 3-D PSNR (dB) / SSIM over the stage's channels, when references exist.
     pub psnr: Option<f64>,
     pub ssim: Option<f64>,
@@ -202,7 +204,7 @@ mod tests {
             wall_s: 0.0,
             train_s: 0.0,
             loss: LossTerms::default(),
-            n_gaussians: 3,
+            n_gaussians: Some(3),
             psnr: None,
             ssim: None,
         };

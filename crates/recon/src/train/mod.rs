@@ -199,7 +199,7 @@ pub fn train(
                 wall_s: log.wall_s(),
                 train_s: log.train_s(),
                 loss: acc.mean_of(k),
-                n_gaussians: trainer.model().len(),
+                n_gaussians: Some(trainer.model().len()),
                 psnr: score.map(|s| s.0),
                 ssim: score.map(|s| s.1),
             })?;

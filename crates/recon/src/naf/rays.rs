@@ -1,0 +1,194 @@
+//! The training rays of one channel and NAF's stratified samples along them.
+//!
+//! Every detector pixel of a training view whose ray (cone or parallel, detector offsets
+//! included: [`prism_domain::geometry::Camera::pixel_ray`]) crosses the volume box is a training
+//! ray, whatever its measured value (rays through air inside the box say "zero" there). NAF
+//! proper samples only pixels with a positive value and a cylinder's near/far; clipping to the
+//! box spends every sample inside the reconstructed volume. Points are handed to the field in
+//! the box's unit cube, `(x − lo) / (hi − lo)` per axis.
+
+use ndarray::ArrayView3;
+use prism_domain::geometry::{Geometry, VolumeGrid};
+use rand::Rng;
+use rand::seq::index::sample;
+
+/// A training ray: `x01(t) = origin + t · dir` (unit-cube coordinates, t in mm along the
+/// world ray), crossing the box for `t ∈ [t0, t1]`, with its measured line integral.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrainRay {
+    pub origin: [f32; 3],
+    pub dir: [f32; 3],
+    pub t0: f32,
+    pub t1: f32,
+    pub value: f32,
+}
+
+/// One batch: `points` `[B·S, 3]` row-major, `steps` (mm) and `values` `[B]`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Batch {
+    pub points: Vec<f32>,
+    pub steps: Vec<f32>,
+    pub values: Vec<f32>,
+}
+
+impl Batch {
+    pub fn rays(&self) -> usize {
+        self.values.len()
+    }
+}
+
+/// The training rays of every training view of a channel.
+pub struct ChannelRays {
+    /// Per training view, its rays that cross the box.
+    pub views: Vec<Vec<TrainRay>>,
+}
+
+impl ChannelRays {
+    /// `projections` `[view][row][col]` of the whole scan; `views` the channel's training views.
+    pub fn new(geometry: &Geometry, projections: ArrayView3<f32>, views: &[usize]) -> Self {
+        let (lo, hi) = geometry.volume.bounds();
+        let ext = [0, 1, 2].map(|a| hi[a] - lo[a]);
+        let d = &geometry.detector;
+        let views = views
+            .iter()
+            .map(|&v| {
+                let cam = geometry.camera(v);
+                let mut rays = Vec::new();
+                for row in 0..d.rows {
+                    for col in 0..d.cols {
+                        let r = cam.pixel_ray(col as f64, row as f64);
+                        let Some((t0, t1)) = clip(r.origin, r.direction, r.length, lo, hi) else {
+                            continue;
+                        };
+                        rays.push(TrainRay {
+                            origin: [0, 1, 2].map(|a| ((r.origin[a] - lo[a]) / ext[a]) as f32),
+                            dir: [0, 1, 2].map(|a| (r.direction[a] / ext[a]) as f32),
+                            t0: t0 as f32,
+                            t1: t1 as f32,
+                            value: projections[[v, row, col]],
+                        });
+                    }
+                }
+                rays
+            })
+            .collect();
+        ChannelRays { views }
+    }
+
+    /// Up to `count` rays of training view `i` (drawn without replacement), each sampled at
+    /// `samples` stratified points: sample k sits at `t0 + (k + u_k)·δ`, u_k uniform in [0, 1),
+    /// `δ = (t1 − t0)/samples`, so `Σ_k μ(x_k)·δ` is an unbiased estimate of the line integral.
+    pub fn batch(&self, i: usize, count: usize, samples: usize, rng: &mut impl Rng) -> Batch {
+        let rays = &self.views[i];
+        let picked = sample(rng, rays.len(), count.min(rays.len()));
+        let mut b = Batch {
+            points: Vec::with_capacity(picked.len() * samples * 3),
+            steps: Vec::with_capacity(picked.len()),
+            values: Vec::with_capacity(picked.len()),
+        };
+        for j in picked {
+            let r = &rays[j];
+            let step = (r.t1 - r.t0) / samples as f32;
+            for k in 0..samples {
+                let t = r.t0 + (k as f32 + rng.random::<f32>()) * step;
+                b.points.extend((0..3).map(|a| r.origin[a] + t * r.dir[a]));
+            }
+            b.steps.push(step);
+            b.values.push(r.value);
+        }
+        b
+    }
+
+    /// Training rays over all views.
+    pub fn len(&self) -> usize {
+        self.views.iter().map(Vec::len).sum()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// The voxel centres of `grid` in its box's unit cube, `[z][y][x]` order: `((i + ½)/n)` per axis.
+pub fn voxel_centres(grid: &VolumeGrid, range: std::ops::Range<usize>) -> Vec<f32> {
+    let (nx, ny) = (grid.nx, grid.ny);
+    let mut out = Vec::with_capacity(range.len() * 3);
+    for flat in range {
+        let (ix, iy, iz) = (flat % nx, (flat / nx) % ny, flat / (nx * ny));
+        out.extend([
+            (ix as f32 + 0.5) / grid.nx as f32,
+            (iy as f32 + 0.5) / grid.ny as f32,
+            (iz as f32 + 0.5) / grid.nz as f32,
+        ]);
+    }
+    out
+}
+
+/// The parameter interval `[t0, t1] ⊂ [0, length]` in which `o + t·d` is inside the box
+/// `[lo, hi]` (slab method), if not empty.
+fn clip(o: [f64; 3], d: [f64; 3], length: f64, lo: [f64; 3], hi: [f64; 3]) -> Option<(f64, f64)> {
+    let (mut t0, mut t1) = (0.0f64, length);
+    for a in 0..3 {
+        if d[a].abs() < 1e-12 {
+            if o[a] < lo[a] || o[a] > hi[a] {
+                return None;
+            }
+            continue;
+        }
+        let (p, q) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+        t0 = t0.max(p.min(q));
+        t1 = t1.min(p.max(q));
+    }
+    (t1 > t0).then_some((t0, t1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn clipping_gives_the_chord_through_the_box() {
+        let (lo, hi) = ([-1.0; 3], [1.0; 3]);
+        // Along x through the centre: enters at t = 4, leaves at t = 6.
+        let t = clip([-5.0, 0.0, 0.0], [1.0, 0.0, 0.0], 20.0, lo, hi).unwrap();
+        assert!((t.0 - 4.0).abs() < 1e-12 && (t.1 - 6.0).abs() < 1e-12);
+        // A diagonal through the corner region: chord √3·2 long.
+        let s = 1.0 / 3f64.sqrt();
+        let t = clip([-2.0, -2.0, -2.0], [s, s, s], 10.0, lo, hi).unwrap();
+        assert!(((t.1 - t.0) - 2.0 * 3f64.sqrt()).abs() < 1e-9);
+        // Parallel to a face, outside it; and a ray stopping short.
+        assert!(clip([-5.0, 1.5, 0.0], [1.0, 0.0, 0.0], 20.0, lo, hi).is_none());
+        assert!(clip([-5.0, 0.0, 0.0], [1.0, 0.0, 0.0], 3.0, lo, hi).is_none());
+    }
+
+    #[test]
+    fn stratified_samples_integrate_a_constant_exactly_and_stay_in_the_cube() {
+        let g =
+            prism_domain::testing::geometry(prism_domain::geometry::Beam::Cone, 16, 24, 4, true);
+        let proj = ndarray::Array3::<f32>::zeros((4, g.detector.rows, g.detector.cols));
+        let rays = ChannelRays::new(&g, proj.view(), &[0, 2]);
+        assert_eq!(rays.views.len(), 2);
+        assert!(!rays.views[0].is_empty());
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        let b = rays.batch(1, 50, 8, &mut rng);
+        assert_eq!(b.rays(), 50);
+        assert_eq!(b.points.len(), 50 * 8 * 3);
+        assert!(b.points.iter().all(|&x| (-1e-5..=1.0 + 1e-5).contains(&x)));
+        // Σ 1·δ over the samples of a ray is its chord length.
+        for (i, &s) in b.steps.iter().enumerate() {
+            let chord = 8.0 * s;
+            let first = &b.points[i * 24..i * 24 + 3];
+            let last = &b.points[i * 24 + 21..i * 24 + 24];
+            assert!(chord > 0.0);
+            // Samples advance monotonically along the ray.
+            let ext = g.volume.size();
+            let dist: f64 = (0..3)
+                .map(|a| ((last[a] - first[a]) as f64 * ext[a]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            assert!(dist < chord as f64 * 1.0001, "{dist} vs {chord}");
+        }
+    }
+}
