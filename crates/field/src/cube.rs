@@ -64,7 +64,54 @@ fn vertex_row(i: u32, j: u32, k: u32, res: u32, dense: bool, cap: u32) -> u32 {
     select(dense, i + res * (j + res * k), hashed)
 }
 
-/// The encoding's forward (`out` zeroed by the host).
+/// Point `i`'s cell on level `l`: its lower vertex, the fractions above it, and the level.
+#[derive(CubeType, CubeTypeMut, Clone, Copy)]
+#[expand(derive(Clone, Copy))]
+struct Cell {
+    cx: u32,
+    cy: u32,
+    cz: u32,
+    fx: f32,
+    fy: f32,
+    fz: f32,
+    offset: u32,
+    res: u32,
+    dense: bool,
+}
+
+#[cube]
+fn locate(points: &Tensor<f32>, levels: &Tensor<f32>, i: usize, l: usize, cap: u32) -> Cell {
+    let scale = levels[l * LEVEL_WIDTH];
+    let res = u32::cast_from(levels[l * LEVEL_WIDTH + 1]);
+    let (cx, fx) = axis(points[3 * i], scale, res);
+    let (cy, fy) = axis(points[3 * i + 1], scale, res);
+    let (cz, fz) = axis(points[3 * i + 2], scale, res);
+    Cell {
+        cx,
+        cy,
+        cz,
+        fx,
+        fy,
+        fz,
+        offset: level_offset(levels, l, cap),
+        res,
+        dense: levels[l * LEVEL_WIDTH + 2] > 0.5f32,
+    }
+}
+
+/// Corner `c` of `cell` (bit a of c set: +1 on axis a): its table row and trilinear weight.
+#[cube]
+fn corner(cell: Cell, c: u32, cap: u32) -> (usize, f32) {
+    let (ux, uy, uz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+    let w = select(ux == 1, cell.fx, 1.0f32 - cell.fx)
+        * select(uy == 1, cell.fy, 1.0f32 - cell.fy)
+        * select(uz == 1, cell.fz, 1.0f32 - cell.fz);
+    let (i, j, k) = (cell.cx + ux, cell.cy + uy, cell.cz + uz);
+    let row = cell.offset + vertex_row(i, j, k, cell.res, cell.dense, cap);
+    (row as usize, w)
+}
+
+/// The encoding's forward (`out` zeroed by the host): one unit per (point, level).
 #[cube(launch)]
 fn encode_kernel(
     points: &Tensor<f32>,
@@ -82,20 +129,10 @@ fn encode_kernel(
         terminate!();
     }
     let (i, l) = (idx / nl, idx % nl);
-    let scale = levels[l * LEVEL_WIDTH];
-    let res = u32::cast_from(levels[l * LEVEL_WIDTH + 1]);
-    let dense = levels[l * LEVEL_WIDTH + 2] > 0.5f32;
-    let offset = level_offset(levels, l, cap);
-    let (cx, fx) = axis(points[3 * i], scale, res);
-    let (cy, fy) = axis(points[3 * i + 1], scale, res);
-    let (cz, fz) = axis(points[3 * i + 2], scale, res);
+    let cell = locate(points, levels, i, l, cap);
     let base = i * nl * features + l * features;
     for c in 0..8u32 {
-        let (ux, uy, uz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
-        let w = select(ux == 1, fx, 1.0f32 - fx)
-            * select(uy == 1, fy, 1.0f32 - fy)
-            * select(uz == 1, fz, 1.0f32 - fz);
-        let row = (offset + vertex_row(cx + ux, cy + uy, cz + uz, res, dense, cap)) as usize;
+        let (row, w) = corner(cell, c, cap);
         #[unroll]
         for f in 0..features {
             out[base + f] += w * table[row * features + f];
@@ -121,20 +158,10 @@ fn encode_backward_kernel(
         terminate!();
     }
     let (i, l) = (idx / nl, idx % nl);
-    let scale = levels[l * LEVEL_WIDTH];
-    let res = u32::cast_from(levels[l * LEVEL_WIDTH + 1]);
-    let dense = levels[l * LEVEL_WIDTH + 2] > 0.5f32;
-    let offset = level_offset(levels, l, cap);
-    let (cx, fx) = axis(points[3 * i], scale, res);
-    let (cy, fy) = axis(points[3 * i + 1], scale, res);
-    let (cz, fz) = axis(points[3 * i + 2], scale, res);
+    let cell = locate(points, levels, i, l, cap);
     let base = i * nl * features + l * features;
     for c in 0..8u32 {
-        let (ux, uy, uz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
-        let w = select(ux == 1, fx, 1.0f32 - fx)
-            * select(uy == 1, fy, 1.0f32 - fy)
-            * select(uz == 1, fz, 1.0f32 - fz);
-        let row = (offset + vertex_row(cx + ux, cy + uy, cz + uz, res, dense, cap)) as usize;
+        let (row, w) = corner(cell, c, cap);
         #[unroll]
         for f in 0..features {
             let g = grad[base + f];
