@@ -191,4 +191,47 @@ mod tests {
             assert!(dist < chord as f64 * 1.0001, "{dist} vs {chord}");
         }
     }
+
+    #[test]
+    fn chords_match_the_joseph_projection_of_a_unit_volume_in_both_beams() {
+        use prism_domain::geometry::Beam;
+        use prism_domain::projector::Joseph;
+        for beam in [Beam::Cone, Beam::Parallel] {
+            let mut g = prism_domain::testing::geometry(beam, 16, 24, 2, true);
+            g.angles_rad = vec![0.3, 2.0];
+            let lengths = Joseph::new(&g).unwrap().ray_lengths(&[0, 1]).unwrap();
+            let (lo, hi) = g.volume.bounds();
+            let mut errs: Vec<f64> = Vec::new();
+            for v in 0..2 {
+                let cam = g.camera(v);
+                let chord = |row: usize, col: usize| {
+                    let r = cam.pixel_ray(col as f64, row as f64);
+                    clip(r.origin, r.direction, r.length, lo, hi).map_or(0.0, |t| t.1 - t.0)
+                };
+                for row in 1..23 {
+                    for col in 1..23 {
+                        // Rays whose neighbours all cross the box, so none grazes a face where
+                        // Joseph's footprint (linear to zero over the outer half voxel) and
+                        // the hard box differ by a whole edge.
+                        let interior = [(0, 1), (2, 1), (1, 0), (1, 2)]
+                            .iter()
+                            .all(|&(a, b)| chord(row + a - 1, col + b - 1) > 1.0);
+                        if !interior {
+                            continue;
+                        }
+                        errs.push((chord(row, col) - lengths[[v, row, col]] as f64).abs());
+                    }
+                }
+            }
+            // Joseph's chord is exact inside the grid and off by up to half a voxel (0.5 mm)
+            // per end where it enters through a face obliquely (more for rays grazing a face).
+            errs.sort_by(f64::total_cmp);
+            let (median, p90) = (errs[errs.len() / 2], errs[errs.len() * 9 / 10]);
+            // Measured: cone median 0.001 / 90 % 0.163 mm (816 rays), parallel 0.001 / 0.032 (608).
+            assert!(
+                errs.len() > 300 && median < 0.01 && p90 < 0.3,
+                "{beam:?}: {median} / {p90} mm"
+            );
+        }
+    }
 }
