@@ -81,8 +81,7 @@ fn point(points: &[f32], i: usize) -> [f32; 3] {
 mod tests {
     use super::*;
     use crate::grid::HashGridConfig;
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
+    use crate::tests::random;
 
     fn small() -> HashGrid {
         HashGridConfig {
@@ -93,11 +92,6 @@ mod tests {
             log2_table_size: 6,
         }
         .layout()
-    }
-
-    fn random(n: usize, lo: f32, hi: f32, seed: u64) -> Vec<f32> {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        (0..n).map(|_| rng.random_range(lo..hi)).collect()
     }
 
     #[test]

@@ -10,14 +10,11 @@
 // Kernels reject NaN through negated comparisons; CubeCL has no `div_ceil`.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::manual_div_ceil)]
 
-use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
-use burn::tensor::{DType, Shape, TensorData};
 use burn_cubecl::cubecl;
-use burn_cubecl::{
-    CubeBackend, kernel::into_contiguous, ops::numeric::zeros_client, tensor::CubeTensor,
-};
+use burn_cubecl::{CubeBackend, kernel::into_contiguous};
 use cubecl::prelude::*;
+use prism_kernel::cube::{linear, supports_f32_atomic_add, upload, zeros};
 
 use crate::grid::{HashGrid, PRIMES};
 use crate::ops::FieldOps;
@@ -188,33 +185,6 @@ fn hash_cap(grid: &HashGrid) -> u32 {
         .map_or(1 << 24, |l| l.size)
 }
 
-fn zeros(like: &CubeTensor, shape: Vec<usize>) -> CubeTensor {
-    zeros_client(
-        like.client.clone(),
-        like.device.clone(),
-        Shape::from(shape),
-        DType::F32,
-    )
-}
-
-fn launch_size(n: usize) -> (CubeCount, CubeDim) {
-    let n = u32::try_from(n).expect("kernel item count fits in u32");
-    (
-        CubeCount::Static(n.div_ceil(CUBE).max(1), 1, 1),
-        CubeDim::new_1d(CUBE),
-    )
-}
-
-/// Whether the device adds f32 atomically.
-fn supports_f32_atomic_add(t: &CubeTensor) -> bool {
-    use cubecl::features::AtomicUsage;
-    use cubecl::ir::{ElemType, FloatKind, Type};
-    t.client
-        .properties()
-        .atomic_type_usage(Type::atomic(Type::new(ElemType::Float(FloatKind::F32))))
-        .contains(AtomicUsage::Add)
-}
-
 impl FieldOps for CubeBackend {
     fn hash_grid_encode(
         points: FloatTensor<Self>,
@@ -227,12 +197,8 @@ impl FieldOps for CubeBackend {
         if n == 0 {
             return out;
         }
-        let levels = pack_levels(&grid);
-        let levels = CubeBackend::float_from_data(
-            TensorData::new(levels.clone(), [levels.len()]),
-            &points.device,
-        );
-        let (count, dim) = launch_size(n * grid.levels.len());
+        let levels = upload(&points, pack_levels(&grid));
+        let (count, dim) = linear(n * grid.levels.len(), CUBE);
         encode_kernel::launch(
             &points.client.clone(),
             count,
@@ -265,12 +231,8 @@ impl FieldOps for CubeBackend {
             "the hash-grid encoder's backward needs f32 atomic add, which this wgpu device does \
              not offer (train NAF on the CPU)"
         );
-        let levels = pack_levels(&grid);
-        let levels = CubeBackend::float_from_data(
-            TensorData::new(levels.clone(), [levels.len()]),
-            &points.device,
-        );
-        let (count, dim) = launch_size(n * grid.levels.len());
+        let levels = upload(&points, pack_levels(&grid));
+        let (count, dim) = linear(n * grid.levels.len(), CUBE);
         encode_backward_kernel::launch(
             &points.client.clone(),
             count,

@@ -32,7 +32,8 @@ fn grid() -> HashGrid {
     .layout()
 }
 
-fn random(n: usize, lo: f32, hi: f32, seed: u64) -> Vec<f32> {
+/// `n` values uniform in `[lo, hi)`, seeded.
+pub(crate) fn random(n: usize, lo: f32, hi: f32, seed: u64) -> Vec<f32> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     (0..n).map(|_| rng.random_range(lo..hi)).collect()
 }

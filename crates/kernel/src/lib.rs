@@ -1,11 +1,15 @@
-//! What Prism's custom Burn ops (`prism-render`, `prism-gscnet`) share, written once:
+//! What Prism's custom Burn ops (`prism-render`, `prism-gscnet`, `prism-field`) share, written once:
 //!
 //! * [`simd`]: whether the CPU runs the AVX2+FMA variants of the CPU kernels;
 //! * [`cpu`]: f32 buffers of the CPU backends' tensors ([`cpu::CpuFloat`], implemented for Flex
 //!   and NdArray), so one kernel implementation serves both;
 //! * [`autodiff`]: recording a custom op on Burn's autodiff graph and registering the gradients
-//!   its hand-written backward returns.
+//!   its hand-written backward returns;
+//! * `cube` (feature `cube`): launch helpers of the CubeCL kernels (buffers, 1-D launch sizes,
+//!   the f32 atomic-add capability).
 
 pub mod autodiff;
 pub mod cpu;
+#[cfg(feature = "cube")]
+pub mod cube;
 pub mod simd;

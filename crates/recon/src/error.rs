@@ -63,3 +63,11 @@ impl Error {
         }
     }
 }
+
+/// A field op or configuration error names its argument or field: a domain error, so that a
+/// configuration's file and path prefixes attach to it like any other.
+impl From<prism_field::FieldError> for Error {
+    fn from(e: prism_field::FieldError) -> Self {
+        Error::invalid(e.field, e.message)
+    }
+}

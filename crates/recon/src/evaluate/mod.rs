@@ -16,7 +16,7 @@ use crate::gaussian::World;
 use crate::gaussian::volume::{volumes, volumes_with};
 use crate::{Error, Result};
 use burn::tensor::Tensor;
-use ndarray::{Array3, Array4, Axis};
+use ndarray::{Array3, Array4, ArrayView3, Axis};
 use prism_domain::geometry::VolumeGrid;
 use prism_domain::metrics::{SsimParams, projection_metrics, psnr, ssim_3d};
 use prism_domain::projector::Joseph;
@@ -168,7 +168,7 @@ fn test_projection_metrics(
 
 /// PSNR / SSIM (R²-Gaussian conventions) of `pred` against `truth`, both divided by the
 /// reference's maximum: the scores a training stage logs.
-pub fn score_volume(pred: Array3<f32>, truth: &Array3<f32>) -> Result<(f64, f64)> {
+pub fn score_volume(pred: ArrayView3<f32>, truth: ArrayView3<f32>) -> Result<(f64, f64)> {
     let peak = truth.fold(0.0f32, |a, &b| a.max(b));
     if peak <= 0.0 {
         return Err(Error::invalid(
@@ -207,7 +207,7 @@ impl Evaluator {
     fn score_volumes(&self, vols: Array4<f32>) -> Result<(f64, f64)> {
         let (mut p, mut s) = (0.0, 0.0);
         for (c, truth) in self.references.iter().enumerate() {
-            let (a, b) = score_volume(vols.index_axis(Axis(0), c).to_owned(), truth)?;
+            let (a, b) = score_volume(vols.index_axis(Axis(0), c), truth.view())?;
             p += a;
             s += b;
         }

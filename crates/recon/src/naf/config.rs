@@ -105,8 +105,6 @@ impl NafConfig {
         ensure_positive("lr.init", self.lr.init)?;
         ensure_positive("lr.gamma", self.lr.gamma)?;
         ensure_positive("attenuation_range", self.attenuation_range)?;
-        self.field
-            .validate("field")
-            .map_err(|e| Error::invalid(e.field, e.message))
+        Ok(self.field.validate("field")?)
     }
 }

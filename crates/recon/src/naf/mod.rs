@@ -66,15 +66,14 @@ pub fn fit_channel(
     let mu_max = (config.attenuation_range * unit) as f32;
     let train_device = device.clone().autodiff();
     let seed = config.seed.wrapping_add(task.index as u64);
-    let mut field = config
-        .field
-        .init(seed, &train_device)
-        .map_err(|e| Error::invalid(e.field, e.message))?;
+    let mut field = config.field.init(seed, &train_device)?;
     let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6e61_665f_7261_7973);
     let mut order: Vec<usize> = Vec::new();
     let (s, nv) = (config.samples_per_ray, rays.views.len());
     let (mut loss_sum, mut loss_n) = (0.0f64, 0usize);
+    // The volume scored at the last iteration is the result (no second evaluation).
+    let mut last = None;
     observer.phase(&format!("naf {}", task.label), config.iterations as u64);
     for it in 0..config.iterations {
         if it % nv == 0 {
@@ -89,9 +88,7 @@ pub fn fit_channel(
         let points = Tensor::<2>::from_data(TensorData::new(b.points, [n * s, 3]), &train_device);
         let steps = Tensor::<2>::from_data(TensorData::new(b.steps, [n, 1]), &train_device);
         let values = Tensor::<1>::from_data(TensorData::new(b.values, [n]), &train_device);
-        let mu = field
-            .forward(points)
-            .map_err(|e| Error::invalid(e.field, e.message))?;
+        let mu = field.forward(points)?;
         let pred = (mu.reshape([n, s]) * steps.mul_scalar(mu_max))
             .sum_dim(1)
             .reshape([n]);
@@ -114,7 +111,10 @@ pub fn fit_channel(
             let scores = match task.reference {
                 Some(r) => {
                     let vol = log.evaluating(|| volume(&field, geometry, mu_max, device))?;
-                    let (p, q) = log.evaluating(|| score_volume(vol, &r.to_owned()))?;
+                    let (p, q) = log.evaluating(|| score_volume(vol.view(), r))?;
+                    if done == config.iterations {
+                        last = Some(vol);
+                    }
                     (Some(p), Some(q))
                 }
                 None => (None, None),
@@ -136,7 +136,10 @@ pub fn fit_channel(
             (loss_sum, loss_n) = (0.0, 0);
         }
     }
-    volume(&field, geometry, mu_max, device)
+    match last {
+        Some(vol) => Ok(vol),
+        None => volume(&field, geometry, mu_max, device),
+    }
 }
 
 /// The field at every voxel centre of the scan's grid, × `mu_max` (mm⁻¹, `[z][y][x]`).
@@ -155,8 +158,7 @@ pub fn volume(
         let pts = voxel_centres(grid, start..end);
         let t = Tensor::<2>::from_data(TensorData::new(pts, [end - start, 3]), device);
         let mu = field
-            .forward(t)
-            .map_err(|e| Error::invalid(e.field, e.message))?
+            .forward(t)?
             .into_data()
             .try_to_vec::<f32>()
             .map_err(|e| Error::invalid("naf", format!("reading the field: {e:?}")))?;

@@ -37,6 +37,31 @@ impl Batch {
     }
 }
 
+/// The volume box (the voxel grid's outer faces, offsets included) and its map onto the unit
+/// cube the field lives in: `(x − lo) / (hi − lo)` per axis.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UnitBox {
+    pub lo: [f64; 3],
+    pub hi: [f64; 3],
+}
+
+impl UnitBox {
+    pub fn new(grid: &VolumeGrid) -> Self {
+        let (lo, hi) = grid.bounds();
+        UnitBox { lo, hi }
+    }
+
+    /// A world point (mm) in unit-cube coordinates.
+    pub fn point(&self, p: [f64; 3]) -> [f32; 3] {
+        [0, 1, 2].map(|a| ((p[a] - self.lo[a]) / (self.hi[a] - self.lo[a])) as f32)
+    }
+
+    /// A world direction (per mm) in unit-cube coordinates.
+    pub fn direction(&self, d: [f64; 3]) -> [f32; 3] {
+        [0, 1, 2].map(|a| (d[a] / (self.hi[a] - self.lo[a])) as f32)
+    }
+}
+
 /// The training rays of every training view of a channel.
 pub struct ChannelRays {
     /// Per training view, its rays that cross the box.
@@ -46,8 +71,7 @@ pub struct ChannelRays {
 impl ChannelRays {
     /// `projections` `[view][row][col]` of the whole scan; `views` the channel's training views.
     pub fn new(geometry: &Geometry, projections: ArrayView3<f32>, views: &[usize]) -> Self {
-        let (lo, hi) = geometry.volume.bounds();
-        let ext = [0, 1, 2].map(|a| hi[a] - lo[a]);
+        let unit = UnitBox::new(&geometry.volume);
         let d = &geometry.detector;
         let views = views
             .iter()
@@ -57,12 +81,14 @@ impl ChannelRays {
                 for row in 0..d.rows {
                     for col in 0..d.cols {
                         let r = cam.pixel_ray(col as f64, row as f64);
-                        let Some((t0, t1)) = clip(r.origin, r.direction, r.length, lo, hi) else {
+                        let Some((t0, t1)) =
+                            clip(r.origin, r.direction, r.length, unit.lo, unit.hi)
+                        else {
                             continue;
                         };
                         rays.push(TrainRay {
-                            origin: [0, 1, 2].map(|a| ((r.origin[a] - lo[a]) / ext[a]) as f32),
-                            dir: [0, 1, 2].map(|a| (r.direction[a] / ext[a]) as f32),
+                            origin: unit.point(r.origin),
+                            dir: unit.direction(r.direction),
                             t0: t0 as f32,
                             t1: t1 as f32,
                             value: projections[[v, row, col]],
@@ -109,17 +135,14 @@ impl ChannelRays {
     }
 }
 
-/// The voxel centres of `grid` in its box's unit cube, `[z][y][x]` order: `((i + ½)/n)` per axis.
+/// The voxel centres (flat `[z][y][x]` indices `range`) of `grid` in its box's unit cube.
 pub fn voxel_centres(grid: &VolumeGrid, range: std::ops::Range<usize>) -> Vec<f32> {
+    let unit = UnitBox::new(grid);
     let (nx, ny) = (grid.nx, grid.ny);
     let mut out = Vec::with_capacity(range.len() * 3);
     for flat in range {
         let (ix, iy, iz) = (flat % nx, (flat / nx) % ny, flat / (nx * ny));
-        out.extend([
-            (ix as f32 + 0.5) / grid.nx as f32,
-            (iy as f32 + 0.5) / grid.ny as f32,
-            (iz as f32 + 0.5) / grid.nz as f32,
-        ]);
+        out.extend(unit.point(grid.voxel_centre(ix, iy, iz)));
     }
     out
 }

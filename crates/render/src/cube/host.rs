@@ -1,12 +1,8 @@
 //! Host-side launch helpers of the CubeCL kernels: buffers, launch sizes, and the packed
 //! cameras and grid the kernels read.
 
-use burn::backend::ops::FloatTensorOps;
-use burn::tensor::{DType, Shape, TensorData};
 use burn_cubecl::cubecl;
-use burn_cubecl::{
-    CubeBackend, kernel::into_contiguous, ops::numeric::zeros_client, tensor::CubeTensor,
-};
+use burn_cubecl::{kernel::into_contiguous, tensor::CubeTensor};
 use cubecl::prelude::*;
 
 use super::CHUNK;
@@ -33,31 +29,15 @@ pub fn pack_cameras(cams: &[Camera]) -> Vec<f32> {
     out
 }
 
-pub fn upload(like: &CubeTensor, values: Vec<f32>) -> CubeTensor {
-    let n = values.len();
-    CubeBackend::float_from_data(TensorData::new(values, [n]), &like.device)
-}
-
-pub fn zeros(like: &CubeTensor, shape: Vec<usize>) -> CubeTensor {
-    zeros_client(
-        like.client.clone(),
-        like.device.clone(),
-        Shape::from(shape),
-        DType::F32,
-    )
-}
+pub use prism_kernel::cube::{upload, zeros};
 
 pub fn dims(t: &CubeTensor) -> Vec<usize> {
     t.meta.shape().to_vec()
 }
 
-/// One unit per item, 256-unit cubes.
+/// One unit per item, [`CHUNK`]-unit cubes.
 pub fn linear(n: usize) -> (CubeCount, CubeDim) {
-    let n = u32::try_from(n).expect("kernel item count fits in u32");
-    (
-        CubeCount::Static(n.div_ceil(CHUNK as u32).max(1), 1, 1),
-        CubeDim::new_1d(CHUNK as u32),
-    )
+    prism_kernel::cube::linear(n, CHUNK as u32)
 }
 
 /// The four Gaussian parameter tensors made contiguous.
