@@ -74,13 +74,17 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
         t.contains("runs/p3-v3-shipped-s0/4dsg.freeze  to run"),
         "{t}"
     );
-    let (ok, t) = prism(&["experiment", s, "-o", o]);
+    // Two cells at a time, the threads split between them; every cell records it.
+    let (ok, t) = prism(&["experiment", s, "-o", o, "--jobs", "2"]);
     assert!(ok, "{t}");
     assert!(
         t.contains("0 failed") && t.contains("22 of 22 run cells finished"),
         "{t}"
     );
+    let record = std::fs::read_to_string(out.join("runs/p3-v3-shipped-s0/4dsg/cell.json")).unwrap();
+    assert!(record.contains("\"concurrent\": 2"), "{record}");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(report.contains("runs made 2 at a time on "), "{report}");
     for needle in [
         "| Method | Phantom PSNR↑ | SSIM↑ | LPIPS↓ | p4 PSNR↑",
         "| Average PSNR↑",
@@ -155,6 +159,11 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
     // collect rewrites the report; --set overrides the suite itself (and is validated).
     let (ok, t) = prism(&["experiment", "collect", s, "-o", o]);
     assert!(ok && t.contains("22 of 22 run cells finished"), "{t}");
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        report.contains("runs made in several ways: one at a time on "),
+        "{report}"
+    );
     let (ok, t) = prism(&[
         "experiment",
         s,
@@ -171,7 +180,8 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
 }
 
 /// The shipped suites plan from the repository alone: the CPU suite at 13 views of 64³ (its noise
-/// study sharing the table's head cells; 20 and 50 views for the curve-model study), the paper
+/// study sharing the table's head cells; 20 and 50 views for the curve-model study), its NAF
+/// companion, the paper
 /// suite at 50 views of 256³; `--study` marks
 /// the other cells as not selected, and an unknown study is refused with the known ones.
 #[test]
@@ -183,13 +193,14 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     let (ok, t) = prism(&["experiment", path(&cpu), "-o", path(&out), "--dry-run"]);
     assert!(ok, "{t}");
     assert!(
-        t.contains("16 scene cells:")
+        t.contains("15 scene cells:")
             && t.contains("scenes/head-v13-shipped-s0  (64³, 13 views, 3 channels)  to run\n")
             && t.contains("scenes/ph8-v13-shipped-s0  (64³, 13 views, 8 channels)")
             && t.contains("scenes/head-v50-shipped-s0  (64³, 50 views, 3 channels)")
-            && t.contains("59 run cells:")
+            && t.contains("52 run cells:")
             && t.contains("runs/head-v13-i0-1e4-s0/4dsg  to run\n")
-            && t.contains("runs/ph3-v13-shipped-s0/naf  to run\n"),
+            && t.contains("runs/ph8-v13-shipped-s0/4dsg-quarter  to run\n")
+            && !t.contains("naf"),
         "{t}"
     );
     let (ok, t) = prism(&[
@@ -220,6 +231,15 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     ]);
     assert!(
         !ok && t.contains("no study `tabel` (the suite has: table, noise, channels"),
+        "{t}"
+    );
+    let naf = repo.join("configs/suites/cpu-naf.yaml");
+    let (ok, t) = prism(&["experiment", path(&naf), "-o", path(&out), "--dry-run"]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("2 scene cells:")
+            && t.contains("6 run cells:")
+            && t.contains("runs/ph3-v13-shipped-s0/naf  to run\n"),
         "{t}"
     );
     let paper = repo.join("configs/suites/paper.yaml");

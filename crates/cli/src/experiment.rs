@@ -64,6 +64,10 @@ struct RunArgs {
     /// List the cells, their directories and whether they are done; run nothing.
     #[arg(long)]
     dry_run: bool,
+    /// Run cells at a time, the threads split evenly between them (default: the suite's
+    /// `jobs`, else 1). Every cell records how it ran; the report says so.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    jobs: Option<u64>,
     /// Run only the cells whose key contains this text (scenes they need included).
     #[arg(long, value_name = "TEXT")]
     only: Option<String>,
@@ -185,6 +189,7 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
         evaluation: &evaluation,
         evaluation_spec: &loaded.suite.evaluation,
         force: a.force,
+        jobs: a.jobs.map_or(loaded.suite.jobs, |n| n as usize),
     };
     let selection = Selection::of(&plan, a.only.as_deref(), &a.study)?;
     if a.dry_run {

@@ -1,4 +1,7 @@
-//! Running a plan's cells, one at a time (timings are only comparable without contention).
+//! Running a plan's cells: one at a time on every thread, or `jobs` at a time with the threads
+//! split between them (each cell on its own rayon pool of `threads / jobs`). Timings are only
+//! comparable between cells run the same way, so every cell records how it ran (`cell.json`'s
+//! `execution`) and the report states it.
 //!
 //! Every cell directory is published atomically, so a directory that exists is finished. Each
 //! carries what it was made from (a scene's provenance: its config text and overrides; a run's
@@ -14,11 +17,13 @@ use prism_domain::scene::Scene;
 use prism_domain::simulate::simulate_file;
 use prism_recon::MethodConfig;
 use prism_recon::evaluate::Evaluation;
-use prism_recon::gaussian::DeviceChoice;
+use prism_recon::gaussian::{DeviceChoice, GaussianMethod};
 use prism_recon::pipeline::ablation::ablate;
 use prism_recon::pipeline::{RunDir, RunOptions, run};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// What every cell is run with.
 pub struct ExecOptions<'a> {
@@ -30,6 +35,27 @@ pub struct ExecOptions<'a> {
     pub evaluation_spec: &'a EvaluationSpec,
     /// Redo cells whose inputs changed (otherwise they are refused).
     pub force: bool,
+    /// Run cells at a time (≥ 1); the threads are split evenly between them.
+    pub jobs: usize,
+}
+
+impl ExecOptions<'_> {
+    /// How each run cell runs under these options: `jobs` at a time on `threads / jobs`
+    /// threads each (at least one).
+    pub fn execution(&self) -> Execution {
+        let jobs = self.jobs.max(1);
+        Execution {
+            concurrent: jobs,
+            threads: (rayon::current_num_threads() / jobs).max(1),
+        }
+    }
+}
+
+/// How a run cell was executed: how many cells ran at once, and the threads it had.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct Execution {
+    pub concurrent: usize,
+    pub threads: usize,
 }
 
 /// `cell.json`: what a run cell was made from.
@@ -42,6 +68,10 @@ pub struct CellRecord {
     /// The method config after overrides and defaults (`config.resolved.yaml`).
     pub method_config: String,
     pub evaluation: EvaluationSpec,
+    /// How it ran (informational: a rerun with other `--jobs` does not redo it). Absent in
+    /// cells written before it was recorded.
+    #[serde(default)]
+    pub execution: Option<Execution>,
 }
 
 pub const CELL_RECORD: &str = "cell.json";
@@ -114,7 +144,14 @@ pub fn cell_record(plan: &Plan, i: usize, options: &ExecOptions) -> Result<CellR
         scene_overrides: scene.overrides.texts(),
         method_config: config.resolved_yaml()?,
         evaluation: options.evaluation_spec.clone(),
+        execution: Some(options.execution()),
     })
+}
+
+/// The record of a finished run cell's directory, if it has a readable one.
+pub fn read_record(dir: &Path) -> Option<CellRecord> {
+    let text = std::fs::read_to_string(dir.join(CELL_RECORD)).ok()?;
+    serde_json::from_str(&text).ok()
 }
 
 /// The state of run cell `i` in `out`.
@@ -302,25 +339,29 @@ pub struct Executed {
     pub failures: Vec<Failure>,
 }
 
-/// Run the selected cells of `plan` in order (scenes first), skipping finished ones; failures are
-/// collected, and a run cell whose scene failed is not attempted.
+/// Run the selected cells of `plan` (scenes first, in order; then the run cells, `jobs` at a
+/// time in order of their index), skipping finished ones; failures are collected, and a run
+/// cell whose scene failed is not attempted.
 pub fn run_plan(plan: &Plan, out: &Path, sel: &Selection, options: &ExecOptions) -> Executed {
-    let mut done = Executed::default();
+    let done = Mutex::new(Executed::default());
     let mut failed_scenes = std::collections::BTreeSet::new();
     let all_scenes: Vec<usize> = (0..plan.scenes.len()).collect();
     let all_runs: Vec<usize> = (0..plan.runs.len()).collect();
     let scenes = sel.scenes.as_ref().unwrap_or(&all_scenes);
     let runs = sel.runs.as_ref().unwrap_or(&all_runs);
-    let tally = |key: &str, r: Result<bool>, done: &mut Executed| match r {
-        Ok(true) => done.ran += 1,
-        Ok(false) => done.skipped += 1,
-        Err(e) => {
-            let e = e.in_cell(key);
-            options.observer.note(Level::Warning, &e.to_string());
-            done.failures.push(Failure {
-                cell: key.to_string(),
-                error: e.to_string(),
-            });
+    let tally = |key: &str, r: Result<bool>| {
+        let mut done = done.lock().unwrap_or_else(|p| p.into_inner());
+        match r {
+            Ok(true) => done.ran += 1,
+            Ok(false) => done.skipped += 1,
+            Err(e) => {
+                let e = e.in_cell(key);
+                options.observer.note(Level::Warning, &e.to_string());
+                done.failures.push(Failure {
+                    cell: key.to_string(),
+                    error: e.to_string(),
+                });
+            }
         }
     };
     for &i in scenes {
@@ -328,25 +369,102 @@ pub fn run_plan(plan: &Plan, out: &Path, sel: &Selection, options: &ExecOptions)
         if r.is_err() {
             failed_scenes.insert(i);
         }
-        tally(&format!("scenes/{}", plan.scenes[i].key), r, &mut done);
+        tally(&format!("scenes/{}", plan.scenes[i].key), r);
     }
-    for (k, &i) in runs.iter().enumerate() {
+    let started = AtomicUsize::new(0);
+    let one = |k: usize, observer: &dyn Observer| {
+        let i = runs[k];
         let key = format!("runs/{}", plan.runs[i].key);
         if failed_scenes.contains(&plan.runs[i].scene) {
-            tally(
-                &key,
-                Err(Error::invalid("scene", "its scene failed")),
-                &mut done,
-            );
-            continue;
+            tally(&key, Err(Error::invalid("scene", "its scene failed")));
+            return;
         }
+        let nth = started.fetch_add(1, Ordering::Relaxed) + 1;
         options.observer.note(
             Level::Info,
-            &format!("[{}/{}] {}", k + 1, runs.len(), plan.runs[i].key),
+            &format!("[{nth}/{}] {}", runs.len(), plan.runs[i].key),
         );
-        tally(&key, run_cell(plan, out, i, options), &mut done);
+        let cell_options = ExecOptions {
+            observer,
+            ..*options
+        };
+        tally(&key, run_cell(plan, out, i, &cell_options));
+    };
+    let execution = options.execution();
+    if execution.concurrent == 1 {
+        (0..runs.len()).for_each(|k| one(k, options.observer));
+    } else {
+        // Longest first, so that no long cell starts last and runs alone (a rough cost).
+        let mut order: Vec<usize> = (0..runs.len()).collect();
+        order.sort_by_key(|&k| std::cmp::Reverse(rough_cost(plan, runs[k])));
+        let next = AtomicUsize::new(0);
+        std::thread::scope(|scope| {
+            for _ in 0..execution.concurrent {
+                scope.spawn(|| {
+                    let pool = rayon::ThreadPoolBuilder::new()
+                        .num_threads(execution.threads)
+                        .build();
+                    while let Some(&k) = order.get(next.fetch_add(1, Ordering::Relaxed)) {
+                        let observer = Tagged {
+                            inner: options.observer,
+                            cell: &plan.runs[runs[k]].key,
+                        };
+                        match &pool {
+                            Ok(pool) => pool.install(|| one(k, &observer)),
+                            Err(e) => tally(
+                                &format!("runs/{}", plan.runs[runs[k]].key),
+                                Err(Error::invalid("jobs", format!("no thread pool: {e}"))),
+                            ),
+                        }
+                    }
+                });
+            }
+        });
     }
-    done
+    done.into_inner().unwrap_or_else(|p| p.into_inner())
+}
+
+/// A rough relative cost of run cell `i`, to order cells run at a time: trained models
+/// (channels, or one shared model per channel count) times their iterations, times the
+/// variants of an ablation; classic methods (seconds) cost nothing. Unreadable configs sort
+/// first (they fail at once).
+fn rough_cost(plan: &Plan, i: usize) -> u64 {
+    let cell = &plan.runs[i];
+    let channels = plan.scenes[cell.scene].channels;
+    let Ok(config) = MethodConfig::load_with(&cell.config, &cell.overrides) else {
+        return u64::MAX;
+    };
+    let base = match &config {
+        MethodConfig::Classic(_) => 0,
+        MethodConfig::Gaussian(g) => {
+            let (shared, per_channel) = match g.method {
+                GaussianMethod::R2gs => (0, g.iterations),
+                GaussianMethod::Stage1 => (g.iterations, g.density_iterations),
+                GaussianMethod::FourDsg => (g.iterations, g.stage2.iterations),
+            };
+            (shared + per_channel * channels) as u64
+        }
+        MethodConfig::Naf(n) => (n.iterations * channels * 4) as u64,
+    };
+    match (cell.kind, &config) {
+        (CellKind::Ablation(study), MethodConfig::Gaussian(g)) => {
+            base * study.variants(g).len() as u64
+        }
+        _ => base,
+    }
+}
+
+/// The observer of a cell that runs beside others: its notes, prefixed with the cell, reach the
+/// suite's observer; its phases and progress (which would fight over one bar) do not.
+struct Tagged<'a> {
+    inner: &'a dyn Observer,
+    cell: &'a str,
+}
+
+impl Observer for Tagged<'_> {
+    fn note(&self, level: Level, text: &str) {
+        self.inner.note(level, &format!("{}: {text}", self.cell));
+    }
 }
 
 /// `failures.json` under the output: the failures of the last run (removed when none).

@@ -21,6 +21,15 @@ pub struct Suite {
     pub scenes: BTreeMap<String, SceneSpec>,
     pub methods: BTreeMap<String, MethodSpec>,
     pub studies: Vec<StudySpec>,
+    /// Run cells executed at a time by `prism experiment` (`--jobs` overrides), the machine's
+    /// threads split evenly between them. Two single-thread cells keep a 2-core machine busier
+    /// than one cell on both threads (whose serial parts leave a core idle).
+    #[serde(default = "one_job")]
+    pub jobs: usize,
+}
+
+fn one_job() -> usize {
+    1
 }
 
 /// A scene: a scene config (`configs/*.yaml`) and overrides of it.
@@ -231,6 +240,9 @@ impl Suite {
         let bad = |field: String, msg: String| Err(Error::invalid(field, msg));
         if !key_ok(&self.name) {
             return bad("name".into(), "letters, digits, `-`, `_` or `.`".into());
+        }
+        if self.jobs == 0 {
+            return bad("jobs".into(), "at least 1".into());
         }
         for (section, keys) in [
             ("scenes", self.scenes.keys().collect::<Vec<_>>()),

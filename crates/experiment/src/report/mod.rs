@@ -6,7 +6,7 @@ mod pictures;
 mod sections;
 pub mod table;
 
-use crate::execute::Failure;
+use crate::execute::{Failure, read_record};
 use crate::plan::Plan;
 use crate::results::{Row, collect, write_csv};
 use crate::suite::{LoadedSuite, StudyKind};
@@ -144,6 +144,47 @@ pub fn write_report(
     })
 }
 
+/// How the finished run cells were executed, e.g. "two at a time on 1 CPU thread each".
+fn executions(ctx: &Context) -> String {
+    let mut seen = std::collections::BTreeSet::new();
+    let mut unknown = 0;
+    for i in 0..ctx.plan.runs.len() {
+        let dir = ctx.plan.run_dir(ctx.out, i);
+        if !dir.join(prism_recon::pipeline::RunDir::MANIFEST).exists() {
+            continue;
+        }
+        match read_record(&dir).and_then(|r| r.execution) {
+            Some(e) => {
+                seen.insert(e);
+            }
+            None => unknown += 1,
+        }
+    }
+    let mut parts: Vec<String> = seen
+        .iter()
+        .map(|e| {
+            let at = match e.concurrent {
+                1 => "one at a time".to_string(),
+                n => format!("{n} at a time"),
+            };
+            let each = if e.concurrent > 1 { " each" } else { "" };
+            let s = if e.threads == 1 { "" } else { "s" };
+            format!("{at} on {} CPU thread{s}{each}", e.threads)
+        })
+        .collect();
+    if unknown > 0 {
+        parts.push(format!("{unknown} cells with no record of how"));
+    }
+    match parts.len() {
+        0 => "(no cell has finished)".into(),
+        1 => parts.remove(0),
+        _ => format!(
+            "in several ways: {} (compare times only within one way)",
+            parts.join("; ")
+        ),
+    }
+}
+
 /// The report's head: the suite, how it was run, the regime of every scene, the protocol.
 fn header(ctx: &Context) -> String {
     let s = &ctx.loaded.suite;
@@ -157,7 +198,7 @@ fn header(ctx: &Context) -> String {
         "Written by `prism {}` from `{}`{}. Every cell is an ordinary run directory under `runs/` \
          (its `metrics.json`, `log.jsonl`, `config.resolved.yaml`), every scene a scene directory \
          under `scenes/`; `results.csv` has one row per channel of every run. Times are training \
-         seconds (evaluation excluded) of runs made one at a time on {} CPU threads{}.\n",
+         seconds (evaluation excluded) of runs made {}{}.\n",
         env!("CARGO_PKG_VERSION"),
         ctx.loaded.file.display(),
         if ctx.loaded.overrides.is_empty() {
@@ -168,7 +209,7 @@ fn header(ctx: &Context) -> String {
                 ctx.loaded.overrides.texts().join(" --set ")
             )
         },
-        std::thread::available_parallelism().map_or(0, |n| n.get()),
+        executions(ctx),
         match std::env::var("SLURM_JOB_ID") {
             Ok(id) => format!(" (Slurm job {id})"),
             Err(_) => String::new(),
