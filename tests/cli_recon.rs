@@ -252,6 +252,19 @@ iterations: 2
     assert!(ok, "{t}");
     let (ok, t) = prism(&["query", path(&run), "--coordinate", "120", "-o", path(&out)]);
     assert!(!ok && t.contains("extrapolate"), "{t}");
+    // A non-finite τ is refused, with or without --extrapolate.
+    for tau in ["nan", "inf"] {
+        let (ok, t) = prism(&[
+            "query",
+            path(&run),
+            "--tau",
+            tau,
+            "--extrapolate",
+            "-o",
+            path(&out),
+        ]);
+        assert!(!ok && t.contains("finite"), "{t}");
+    }
     // The report marks the predicted channel and lists the volumes.
     let (ok, t) = prism(&["report", path(&run)]);
     assert!(ok, "{t}");
@@ -349,4 +362,30 @@ fn ablation_runs_every_variant_from_one_stage_one() {
         !ok && t.contains("method") && t.contains("4dsg.yaml"),
         "{t}"
     );
+}
+
+/// `prism info` and `prism recon -s` take an R²-Gaussian case folder (`meta_data.json`) as a
+/// one-channel scene.
+#[test]
+fn an_r2_gaussian_case_folder_is_a_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let case = dir.path().join("case");
+    prism_domain::testing::write_r2_case(&case);
+    let (ok, t) = prism(&["info", path(&case)]);
+    assert!(ok && t.contains("r2"), "{t}");
+    // Its 4×3×2 reference is too small to score (SSIM's 11² window): reconstruct without it.
+    let meta = case.join(prism_domain::scene::R2_META_FILE);
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&meta).unwrap()).unwrap();
+    m.as_object_mut().unwrap().remove("vol");
+    std::fs::write(&meta, m.to_string()).unwrap();
+    std::fs::remove_file(case.join("vol_gt.npy")).unwrap();
+    let (ok, t) = prism(&["info", path(&case)]);
+    assert!(ok && t.contains("r2"), "{t}");
+    // SART: the case's three training views span 2 rad, too short a scan for FDK.
+    let sart = dir.path().join("sart.yaml");
+    std::fs::write(&sart, "method: sart\niterations: 1\n").unwrap();
+    let run = dir.path().join("run");
+    let (ok, t) = prism(&["recon", path(&sart), "-s", path(&case), "-o", path(&run)]);
+    assert!(ok && run.join("r2.npy").is_file(), "{t}");
 }

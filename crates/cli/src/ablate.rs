@@ -52,7 +52,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.config.display()
         ),
     };
-    let scene = Scene::load(&args.scene)?;
+    let scene = Scene::open(&args.scene)?;
     let study = match args.study {
         StudyArg::Freeze => Study::Freeze,
         StudyArg::CurveModel => Study::CurveModel,

@@ -10,12 +10,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let scene =
-        if args.scene.join("meta_data.json").exists() && !args.scene.join("scene.yaml").exists() {
-            Scene::load_r2(&args.scene)?
-        } else {
-            Scene::load(&args.scene)?
-        };
+    let scene = Scene::open(&args.scene)?;
     print!("{}", scene.summary());
     Ok(())
 }

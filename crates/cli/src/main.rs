@@ -7,6 +7,8 @@ mod ablate;
 mod args;
 mod bench;
 mod experiment;
+mod export;
+mod import;
 mod info;
 mod progress;
 mod query;
@@ -61,6 +63,12 @@ enum Command {
     /// An experiment suite (configs/suites/): methods × scenes × views × noise × seeds, resumable,
     /// with results.csv, a report in the paper's table layout and figures; `--slurm` for clusters.
     Experiment(experiment::Args),
+    /// Measured projections (counts with flat and dark fields, or line integrals; .npy, TIFF,
+    /// raw) of one or several acquisitions into a scene, with the full-view FDK as reference.
+    Import(import::Args),
+    /// Volumes (a scene's references, `prism recon` / `prism query` output) as NIfTI-1 (.nii,
+    /// .nii.gz) or MetaImage (.mha) with the scene's voxel spacing and grid position, or TIFF stacks.
+    Export(export::Args),
 }
 
 fn main() -> ExitCode {
@@ -74,6 +82,8 @@ fn main() -> ExitCode {
         Command::Ablate(args) => ablate::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Experiment(args) => experiment::run(args),
+        Command::Export(args) => export::run(args),
+        Command::Import(args) => import::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

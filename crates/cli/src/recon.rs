@@ -13,7 +13,8 @@ pub struct ReconArgs {
     /// Reconstruction config (YAML) with `method: fdk | sart | cgls | naf | r2gs | 4dsg-stage1 | 4dsg`
     /// and that method's settings (see configs/recon/).
     config: PathBuf,
-    /// Scene directory (scene.yaml + .npy arrays).
+    /// Scene directory (scene.yaml + .npy arrays), or an R²-Gaussian case folder
+    /// (meta_data.json; one channel).
     #[arg(short = 's', long = "scene")]
     scene: PathBuf,
     #[command(flatten)]
@@ -28,7 +29,7 @@ pub struct ReconArgs {
 
 pub fn run_cmd(args: ReconArgs) -> anyhow::Result<()> {
     let mut config = MethodConfig::load_with(&args.config, &args.set.overrides()?)?;
-    let scene = Scene::load(&args.scene)?;
+    let scene = Scene::open(&args.scene)?;
     let evaluation = args.eval.evaluation()?;
     let bars = Bars::new();
     let options = args.gaussian.options(&mut config, &bars, &evaluation)?;

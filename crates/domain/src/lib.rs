@@ -10,7 +10,9 @@
 //! [`observe::Observer`]; this crate never prints.
 
 pub mod error;
+pub mod export;
 pub mod geometry;
+pub mod import;
 pub mod metrics;
 pub mod observe;
 pub mod phantom;

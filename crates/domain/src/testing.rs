@@ -2,9 +2,11 @@
 //! supersampled voxelisation, and small test geometries.
 
 use crate::geometry::{Beam, Detector, Geometry, VolumeGrid};
-use ndarray::Array3;
+use ndarray::{Array2, Array3};
+use ndarray_npy::write_npy;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use std::path::Path;
 
 /// A scene config (YAML) of the built-in phantom (radius 110 mm, cone beam, DSO 1000 mm, DSD
 /// 1500 mm, a 512 mm detector) with `views` training and 2 test views, an `n`³ grid of 256 mm and
@@ -168,4 +170,38 @@ pub fn rel_l2(a: &Array3<f32>, b: &Array3<f32>) -> f64 {
     let num: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum();
     let den: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum();
     (num / den).sqrt()
+}
+
+/// An R²-Gaussian case: 3 train + 2 test views of 6×8, a 4×3×2 `[x][y][z]` volume.
+pub fn write_r2_case(dir: &Path) -> (Vec<Array2<f32>>, Array3<f32>) {
+    std::fs::create_dir_all(dir.join("proj_train")).unwrap();
+    std::fs::create_dir_all(dir.join("proj_test")).unwrap();
+    let angles = [0.0, 1.0, 2.0, 0.5, 1.5];
+    let mut imgs = Vec::new();
+    let mut list = |name: &str, range: std::ops::Range<usize>| -> Vec<serde_json::Value> {
+        range
+            .map(|k| {
+                let img = Array2::from_shape_fn((6, 8), |(r, c)| (k * 100 + r * 10 + c) as f32);
+                let path = format!("{name}/{name}_{k:04}.npy");
+                write_npy(dir.join(&path), &img).unwrap();
+                imgs.push(img);
+                serde_json::json!({"file_path": path, "angle": angles[k]})
+            })
+            .collect()
+    };
+    let train = list("proj_train", 0..3);
+    let test = list("proj_test", 3..5);
+    let vol = Array3::from_shape_fn((4, 3, 2), |(x, y, z)| (100 * x + 10 * y + z) as f32);
+    write_npy(dir.join("vol_gt.npy"), &vol).unwrap();
+    let meta = serde_json::json!({
+        "scanner": {"mode": "cone", "DSD": 7.0, "DSO": 5.0, "nDetector": [6, 8],
+                    "sDetector": [3.0, 4.0], "nVoxel": [4, 3, 2], "sVoxel": [2.0, 1.5, 1.0],
+                    "offOrigin": [0, 0, 0], "offDetector": [0, 0], "accuracy": 0.5},
+        "vol": "vol_gt.npy",
+        "bbox": [[-1, -1, -1], [1, 1, 1]],
+        "proj_train": train,
+        "proj_test": test,
+    });
+    std::fs::write(dir.join(crate::scene::R2_META_FILE), meta.to_string()).unwrap();
+    (imgs, vol)
 }

@@ -397,7 +397,11 @@ pub fn run_plan(plan: &Plan, out: &Path, sel: &Selection, options: &ExecOptions)
         // Longest first, so that no long cell starts last and runs alone (a rough cost).
         let mut order: Vec<usize> = (0..runs.len()).collect();
         order.sort_by_key(|&k| std::cmp::Reverse(rough_cost(plan, runs[k])));
-        let next = AtomicUsize::new(0);
+        let (next, finished) = (AtomicUsize::new(0), AtomicUsize::new(0));
+        options.observer.phase(
+            &format!("{} at a time", execution.concurrent),
+            runs.len() as u64,
+        );
         std::thread::scope(|scope| {
             for _ in 0..execution.concurrent {
                 scope.spawn(|| {
@@ -416,6 +420,10 @@ pub fn run_plan(plan: &Plan, out: &Path, sel: &Selection, options: &ExecOptions)
                                 Err(Error::invalid("jobs", format!("no thread pool: {e}"))),
                             ),
                         }
+                        let n = finished.fetch_add(1, Ordering::Relaxed) + 1;
+                        options
+                            .observer
+                            .progress(n as u64, &format!("finished {}", observer.cell));
                     }
                 });
             }

@@ -63,6 +63,17 @@ fn inside(dir: &Path, rel: &str, file: &Path, field: &str) -> Result<PathBuf> {
 }
 
 impl Scene {
+    /// Load a scene directory (`scene.yaml`), or an R²-Gaussian case folder (`meta_data.json`,
+    /// no `scene.yaml`) as [`Scene::load_r2`] does.
+    pub fn open(dir: impl AsRef<Path>) -> Result<Scene> {
+        let dir = dir.as_ref();
+        if dir.join("meta_data.json").is_file() && !dir.join("scene.yaml").exists() {
+            Scene::load_r2(dir)
+        } else {
+            Scene::load(dir)
+        }
+    }
+
     /// Load an R²-Gaussian case folder as a one-channel scene (see the module documentation).
     /// Errors name the file and the field (`scanner.DSO`, `proj_test[2].file_path`, `vol`…).
     pub fn load_r2(dir: impl AsRef<Path>) -> Result<Scene> {

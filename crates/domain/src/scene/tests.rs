@@ -1,5 +1,6 @@
 use super::*;
 use crate::geometry::{Beam, Detector, VolumeGrid};
+use crate::testing::write_r2_case;
 use ndarray::{Array, Array2, Array3, Array4};
 use ndarray_npy::write_npy;
 use rand::{Rng, SeedableRng};
@@ -480,45 +481,12 @@ fn array_errors_name_the_file_and_field() {
     assert!(err.contains("<f4"), "{err}");
 }
 
-/// An R²-Gaussian case: 3 train + 2 test views of 6×8, a 4×3×2 `[x][y][z]` volume.
-fn write_r2_case(dir: &Path) -> (Vec<Array2<f32>>, Array3<f32>) {
-    fs::create_dir_all(dir.join("proj_train")).unwrap();
-    fs::create_dir_all(dir.join("proj_test")).unwrap();
-    let angles = [0.0, 1.0, 2.0, 0.5, 1.5];
-    let mut imgs = Vec::new();
-    let mut list = |name: &str, range: std::ops::Range<usize>| -> Vec<serde_json::Value> {
-        range
-            .map(|k| {
-                let img = Array2::from_shape_fn((6, 8), |(r, c)| (k * 100 + r * 10 + c) as f32);
-                let path = format!("{name}/{name}_{k:04}.npy");
-                write_npy(dir.join(&path), &img).unwrap();
-                imgs.push(img);
-                serde_json::json!({"file_path": path, "angle": angles[k]})
-            })
-            .collect()
-    };
-    let train = list("proj_train", 0..3);
-    let test = list("proj_test", 3..5);
-    let vol = Array3::from_shape_fn((4, 3, 2), |(x, y, z)| (100 * x + 10 * y + z) as f32);
-    write_npy(dir.join("vol_gt.npy"), &vol).unwrap();
-    let meta = serde_json::json!({
-        "scanner": {"mode": "cone", "DSD": 7.0, "DSO": 5.0, "nDetector": [6, 8],
-                    "sDetector": [3.0, 4.0], "nVoxel": [4, 3, 2], "sVoxel": [2.0, 1.5, 1.0],
-                    "offOrigin": [0, 0, 0], "offDetector": [0, 0], "accuracy": 0.5},
-        "vol": "vol_gt.npy",
-        "bbox": [[-1, -1, -1], [1, 1, 1]],
-        "proj_train": train,
-        "proj_test": test,
-    });
-    fs::write(dir.join(R2_META_FILE), meta.to_string()).unwrap();
-    (imgs, vol)
-}
-
 #[test]
 fn r2_case_loads_with_transposed_volume() {
     let tmp = tempfile::tempdir().unwrap();
     let (imgs, vol) = write_r2_case(tmp.path());
     let s = Scene::load_r2(tmp.path()).unwrap();
+    assert_eq!(Scene::open(tmp.path()).unwrap(), s);
     assert_eq!(s.n_channels(), 1);
     assert_eq!(s.channels[0].label, "r2");
     assert_eq!(s.channels[0].coordinate, SpectralCoordinate::Unspecified);
@@ -549,6 +517,7 @@ fn r2_case_loads_with_transposed_volume() {
     let out = tmp.path().join("prism");
     s.save(&out).unwrap();
     assert_eq!(Scene::load(&out).unwrap(), s);
+    assert_eq!(Scene::open(&out).unwrap(), s);
 }
 
 #[test]
@@ -631,4 +600,33 @@ fn summary_reports_geometry_channels_and_ranges() {
         assert_eq!(l.find("kVp").map(|i| i >= col), Some(true));
         assert!(l[col..].starts_with(char::is_alphanumeric), "{l}");
     }
+}
+
+/// A `.npy` whose header claims far more data than the file holds is refused by name before
+/// anything is allocated for it (it used to abort the process); an honest one still reads.
+#[test]
+fn npy_headers_claiming_more_than_the_file_holds_are_refused_before_allocation() {
+    let dir = tempfile::tempdir().unwrap();
+    let honest = dir.path().join("honest.npy");
+    write_npy(&honest, &Array3::<f32>::from_elem((2, 3, 4), 1.5)).unwrap();
+    let a = io::read_npy_f32(&honest, "volume").unwrap();
+    assert_eq!(a.shape(), [2, 3, 4]);
+    // A version-1 header declaring a 4 PB array, followed by 96 bytes of data.
+    let mut dict =
+        "{'descr': '<f4', 'fortran_order': False, 'shape': (99999, 99999, 99999), }".to_string();
+    while !(10 + dict.len() + 1).is_multiple_of(64) {
+        dict.push(' ');
+    }
+    dict.push('\n');
+    let mut forged = b"\x93NUMPY\x01\x00".to_vec();
+    forged.extend((dict.len() as u16).to_le_bytes());
+    forged.extend(dict.as_bytes());
+    forged.extend([0u8; 96]);
+    let path = dir.path().join("forged.npy");
+    fs::write(&path, &forged).unwrap();
+    let e = io::read_npy_f32(&path, "volume").unwrap_err().to_string();
+    assert!(
+        e.contains("forged.npy") && e.contains("[99999, 99999, 99999]") && e.contains("96"),
+        "{e}"
+    );
 }

@@ -257,6 +257,9 @@ pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
         scale: num("world_scale")?,
         density_scale: num("density_scale")?,
     };
+    world
+        .validate()
+        .map_err(|e| e.in_file(path).under("metadata"))?;
     Ok(LoadedModel {
         model: GaussianModel::new(&host, bounds, device),
         world,

@@ -27,16 +27,29 @@ impl World {
         if !(edge.is_finite() && edge > 0.0) {
             return Err(Error::invalid("geometry.volume", "has no extent"));
         }
-        if !(density_scale.is_finite() && density_scale > 0.0) {
-            return Err(Error::invalid(
-                "density_scale",
-                format!("must be finite and > 0, got {density_scale}"),
-            ));
-        }
-        Ok(World {
+        let world = World {
             scale: 2.0 / edge,
             density_scale,
-        })
+        };
+        world.validate()?;
+        Ok(world)
+    }
+
+    /// Both scales finite and positive (a stored world is checked on load: a negative
+    /// `density_scale` would turn every μ negative).
+    pub fn validate(&self) -> Result<()> {
+        for (field, v) in [
+            ("world_scale", self.scale),
+            ("density_scale", self.density_scale),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::invalid(
+                    field,
+                    format!("must be finite and > 0, got {v}"),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// `geometry` with every length multiplied by [`World::scale`].

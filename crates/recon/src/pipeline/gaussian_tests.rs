@@ -243,6 +243,18 @@ fn initial_scales_are_the_lattice_spacing_and_models_round_trip() {
     );
     let header_end = text.find("end_header\n").unwrap() + "end_header\n".len();
     assert_eq!(bytes.len() - header_end, host.len() * 11 * 4);
+    // A stored negative density scale (every μ would be negative) is refused on load.
+    let negative = World {
+        density_scale: -world.density_scale,
+        ..world
+    };
+    let bad = dir.path().join("negative.safetensors");
+    save_model(&bad, &model, None, &negative, &info).unwrap();
+    let e = load_model(&bad, &dev).err().unwrap().to_string();
+    assert!(
+        e.contains("negative.safetensors") && e.contains("metadata.density_scale"),
+        "{e}"
+    );
     // A corrupted file names the file and the problem.
     std::fs::write(&path, b"nonsense").unwrap();
     let e = load_model(&path, &dev).err().unwrap().to_string();

@@ -124,16 +124,7 @@ impl RunDir {
     /// A channel label as a file-name stem: every character but ASCII letters, digits, `-`,
     /// `_` and `.` replaced by `_`.
     pub fn stem(label: &str) -> String {
-        label
-            .chars()
-            .map(|c| {
-                if c.is_ascii_alphanumeric() || "-_.".contains(c) {
-                    c
-                } else {
-                    '_'
-                }
-            })
-            .collect()
+        prism_domain::scene::file_stem(label)
     }
 
     /// The file name of a channel's volume: `<stem>.npy` ([`RunDir::stem`]).

@@ -27,6 +27,12 @@ pub fn raw_at(
     tau: f64,
     extrapolation: Extrapolation,
 ) -> Result<Tensor<2>> {
+    if !tau.is_finite() {
+        return Err(Error::invalid(
+            "tau",
+            format!("τ* must be a finite number (got {tau})"),
+        ));
+    }
     let [k, m] = raw.dims();
     if m == 1 {
         let t0 = info.tau.first().copied().unwrap_or(0.0);

@@ -1,0 +1,295 @@
+//! The import config (`prism import <import.yaml>`): where the measured images are, what they
+//! are, the scanner geometry and the view selection. See `docs/import.md` for the format.
+
+use crate::geometry::{Beam, Detector, Geometry, TigreGeometry, VolumeGrid};
+use crate::scene::SpectralCoordinate;
+use crate::{Error, Result};
+use serde::Deserialize;
+use std::f64::consts::PI;
+use std::path::PathBuf;
+
+/// A measured scan: one or several acquisitions (kVp settings, energy windows) of one object.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImportConfig {
+    pub name: String,
+    /// The scanner without its angles: Prism's own fields (`docs/geometry.md`) or TIGRE's.
+    #[serde(with = "serde_yaml_ng::with::singleton_map")]
+    pub geometry: GeometrySource,
+    /// The angles of the full scan, one per image of a full stack.
+    pub angles: AngleSpec,
+    /// Images stored with the bottom detector row first (TIGRE's order); Prism's row 0 is the
+    /// top (+z). TIGRE geometries imply it.
+    #[serde(default)]
+    pub rows_bottom_up: bool,
+    /// Flat (open beam) and dark fields of every channel that gives none of its own:
+    /// `[rows, cols]` or a stack `[n, rows, cols]` (averaged).
+    #[serde(default)]
+    pub flat: Option<ImageSource>,
+    #[serde(default)]
+    pub dark: Option<ImageSource>,
+    /// Dark-corrected counts `I − D` below this are raised to it before the log, so zero and
+    /// negative counts give a large but finite line integral (default 0.5 counts). How many
+    /// pixels were raised is reported.
+    #[serde(default = "default_min_counts")]
+    pub min_counts: f64,
+    pub channels: Vec<ChannelSource>,
+    #[serde(default)]
+    pub select: ViewSelection,
+    /// Where the data come from, and licence or acknowledgement lines that travel with them.
+    #[serde(default)]
+    pub source_data: Vec<String>,
+    #[serde(default)]
+    pub licence: Vec<String>,
+}
+
+fn default_min_counts() -> f64 {
+    0.5
+}
+
+/// The scanner geometry, without angles.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum GeometrySource {
+    Prism {
+        beam: Beam,
+        dso: f64,
+        dsd: f64,
+        detector: Detector,
+        volume: VolumeGrid,
+    },
+    /// TIGRE's Python fields in TIGRE's orders (`(v, u)`, `(z, y, x)`).
+    Tigre(TigreGeometry),
+}
+
+/// The full scan's angles: evenly spaced (`count`, `start_deg`, `span_deg`), listed (`deg`), or
+/// read from a file (`file`, `.npy` or text with one value per line, in `unit`).
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AngleSpec {
+    pub count: Option<usize>,
+    #[serde(default)]
+    pub start_deg: f64,
+    /// Default a full turn; the endpoint is excluded.
+    pub span_deg: Option<f64>,
+    pub deg: Option<Vec<f64>>,
+    pub file: Option<PathBuf>,
+    pub unit: Option<AngleUnit>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AngleUnit {
+    Deg,
+    Rad,
+}
+
+/// One acquisition: a channel of the scene.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelSource {
+    pub label: String,
+    pub coordinate: SpectralCoordinate,
+    /// Raw counts `[views, rows, cols]`: line integrals −ln((I − D)/(F − D)).
+    pub counts: Option<ImageSource>,
+    /// Or line integrals already (`[views, rows, cols]`, e.g. another tool's output).
+    pub line_integrals: Option<ImageSource>,
+    /// This channel's own flat and dark fields (else the config's).
+    pub flat: Option<ImageSource>,
+    pub dark: Option<ImageSource>,
+    /// The views of the full scan this channel's images were taken at, in stack order (default:
+    /// all of them); the other views are marked unavailable for it.
+    pub views: Option<Vec<usize>>,
+}
+
+/// Images: a file holding a stack (`.npy`, `.tif`/`.tiff`, or headerless with `raw`), or a
+/// directory of one image per view (`.npy` or `.tif`, in file-name order).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageSource {
+    pub path: PathBuf,
+    pub raw: Option<RawLayout>,
+}
+
+/// A headerless file: element type, shape (`[views, rows, cols]` or `[rows, cols]`), byte
+/// order and bytes to skip before the data.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawLayout {
+    pub dtype: RawType,
+    pub shape: Vec<usize>,
+    #[serde(default)]
+    pub big_endian: bool,
+    #[serde(default)]
+    pub header_bytes: u64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RawType {
+    U8,
+    U16,
+    U32,
+    I16,
+    I32,
+    F32,
+    F64,
+}
+
+impl RawType {
+    pub fn size(self) -> usize {
+        match self {
+            RawType::U8 => 1,
+            RawType::U16 | RawType::I16 => 2,
+            RawType::U32 | RawType::I32 | RawType::F32 => 4,
+            RawType::F64 => 8,
+        }
+    }
+}
+
+/// Which views of the full scan the scene keeps.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewSelection {
+    /// Training views: this many, evenly over the scan (view ⌊i·n/count⌋), or every `every`-th
+    /// from view 0; default every view.
+    pub views: Option<usize>,
+    pub every: Option<usize>,
+    /// Test views (projection metrics), evenly among the views not used for training.
+    #[serde(default)]
+    pub test_views: usize,
+    /// Reference volumes (`fdk`: of every measured view of each channel, as the paper's real
+    /// data use; `none`).
+    #[serde(default)]
+    pub reference: ReferenceKind,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReferenceKind {
+    #[default]
+    Fdk,
+    None,
+}
+
+impl ImportConfig {
+    /// The geometry with the full scan's angles (radians), and whether stored rows run bottom-up.
+    pub fn geometry(&self, angles_rad: Vec<f64>) -> Result<(Geometry, bool)> {
+        match &self.geometry {
+            GeometrySource::Prism {
+                beam,
+                dso,
+                dsd,
+                detector,
+                volume,
+            } => {
+                let g = Geometry {
+                    beam: *beam,
+                    dso: *dso,
+                    dsd: *dsd,
+                    detector: detector.clone(),
+                    volume: volume.clone(),
+                    angles_rad,
+                };
+                g.validate().map_err(|e| e.under("geometry.prism"))?;
+                Ok((g, self.rows_bottom_up))
+            }
+            GeometrySource::Tigre(t) => Ok((
+                t.to_geometry(angles_rad)
+                    .map_err(|e| e.under("geometry.tigre"))?,
+                true,
+            )),
+        }
+    }
+
+    /// Training and test views (sorted indices into the full scan of `n` views).
+    pub fn pick_views(&self, n: usize) -> Result<(Vec<usize>, Vec<usize>)> {
+        let s = &self.select;
+        let train: Vec<usize> = match (s.views, s.every) {
+            (Some(_), Some(_)) => {
+                return Err(Error::invalid(
+                    "select",
+                    "give `views` or `every`, not both",
+                ));
+            }
+            (Some(k), None) => {
+                if k == 0 || k > n {
+                    return Err(Error::invalid(
+                        "select.views",
+                        format!("must be between 1 and the scan's {n} views, got {k}"),
+                    ));
+                }
+                (0..k).map(|i| i * n / k).collect()
+            }
+            (None, Some(e)) => {
+                if e == 0 {
+                    return Err(Error::invalid("select.every", "must be at least 1"));
+                }
+                (0..n).step_by(e).collect()
+            }
+            (None, None) => (0..n).collect(),
+        };
+        let rest: Vec<usize> = (0..n).filter(|v| train.binary_search(v).is_err()).collect();
+        let t = s.test_views;
+        if t > rest.len() {
+            return Err(Error::invalid(
+                "select.test_views",
+                format!(
+                    "{t} test views asked, but only {} views are not used for training",
+                    rest.len()
+                ),
+            ));
+        }
+        let test = (0..t).map(|i| rest[i * rest.len() / t]).collect();
+        Ok((train, test))
+    }
+}
+
+impl AngleSpec {
+    /// The angles in radians (`read` reads a file of values; paths are the caller's concern).
+    pub fn resolve(&self, read: impl Fn(&std::path::Path) -> Result<Vec<f64>>) -> Result<Vec<f64>> {
+        let given = [
+            self.count.is_some(),
+            self.deg.is_some(),
+            self.file.is_some(),
+        ];
+        if given.iter().filter(|&&g| g).count() != 1 {
+            return Err(Error::invalid(
+                "angles",
+                "give exactly one of `count` (evenly spaced), `deg` (a list) or `file`",
+            ));
+        }
+        let angles = if let Some(n) = self.count {
+            let span = self.span_deg.unwrap_or(360.0);
+            Geometry::uniform_angles(n, self.start_deg.to_radians(), span.to_radians())
+        } else if let Some(d) = &self.deg {
+            d.iter().map(|a| a.to_radians()).collect()
+        } else {
+            let file = self.file.as_deref().unwrap_or(std::path::Path::new(""));
+            let values = read(file)?;
+            match self.unit {
+                Some(AngleUnit::Deg) => values.iter().map(|a| a.to_radians()).collect(),
+                Some(AngleUnit::Rad) => values,
+                None => {
+                    return Err(Error::invalid(
+                        "angles.unit",
+                        "say whether the file's angles are in `deg` or `rad`",
+                    ));
+                }
+            }
+        };
+        if angles.is_empty() {
+            return Err(Error::invalid("angles", "no angles"));
+        }
+        if let Some(i) = angles.iter().position(|a| !a.is_finite()) {
+            return Err(Error::invalid(format!("angles[{i}]"), "is not finite"));
+        }
+        if angles.iter().any(|a| a.abs() > 16.0 * PI) && self.unit == Some(AngleUnit::Rad) {
+            return Err(Error::invalid(
+                "angles.unit",
+                "angles beyond ±8 turns: are they degrees?",
+            ));
+        }
+        Ok(angles)
+    }
+}

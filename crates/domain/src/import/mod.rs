@@ -1,0 +1,290 @@
+//! Measured projections → a scene: `prism import <import.yaml> -o <scene_dir>`.
+//!
+//! Each channel (an acquisition: a kVp setting, an energy window) gives its raw counts `I` with
+//! flat (open beam) `F` and dark `D` fields, or its line integrals directly. Counts become line
+//! integrals `p = −ln((I − D) / (F − D))`, with `I − D` raised to `min_counts` where it is
+//! smaller (zero and negative counts: a large finite `p`, and a count of how many) and an error
+//! where `F − D ≤ 0` (no beam to normalise by). Rows stored bottom-up (TIGRE) are flipped to
+//! Prism's top-down order. Channels may have been measured at a subset of the scan's views
+//! (`views`); the scene marks the others unavailable.
+//!
+//! [`assemble`] builds the full scan (every view); [`Scene::with_views`] keeps the selected
+//! training and test views. The full-view FDK reference needs a reconstruction method, so the
+//! `prism import` command computes it between the two (`prism_recon`).
+
+pub mod config;
+pub mod images;
+#[cfg(test)]
+mod tests;
+
+pub use config::{ImportConfig, ReferenceKind};
+
+use crate::scene::{Channel, Provenance, Scene, Split, normalise_tau};
+use crate::{Error, Result};
+use images::read_stack;
+use ndarray::{Array2, Array3, Array4, ArrayView2, Axis, s};
+use std::path::Path;
+
+/// The whole scan as line integrals, before view selection.
+#[derive(Clone, Debug)]
+pub struct FullScan {
+    /// Every view of the scan for training (`split.train` = all), no references.
+    pub scene: Scene,
+    /// Per channel: pixels whose dark-corrected counts were raised to `min_counts`.
+    pub raised: Vec<usize>,
+}
+
+/// Read and convert every channel of `config` (paths relative to `base`); `config_text` is kept
+/// as the scene's provenance.
+pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result<FullScan> {
+    let angles = config.angles.resolve(|p| read_angles(&base.join(p)))?;
+    let (geometry, bottom_up) = config.geometry(angles)?;
+    let n_views = geometry.views();
+    let (rows, cols) = (geometry.detector.rows, geometry.detector.cols);
+    if config.channels.is_empty() {
+        return Err(Error::invalid(
+            "channels",
+            "an import needs at least one channel",
+        ));
+    }
+    if !(config.min_counts.is_finite() && config.min_counts > 0.0) {
+        return Err(Error::invalid(
+            "min_counts",
+            format!("must be finite and > 0, got {}", config.min_counts),
+        ));
+    }
+    let shared_flat = config
+        .flat
+        .as_ref()
+        .map(|f| mean_image(f, base, "flat"))
+        .transpose()?;
+    let shared_dark = config
+        .dark
+        .as_ref()
+        .map(|f| mean_image(f, base, "dark"))
+        .transpose()?;
+    let m = config.channels.len();
+    let mut projections = Array4::<f32>::zeros((m, n_views, rows, cols));
+    let mut availability = Array2::from_elem((n_views, m), false);
+    let mut raised = Vec::with_capacity(m);
+    let mut channels = Vec::with_capacity(m);
+    for (c, src) in config.channels.iter().enumerate() {
+        let field = |f: &str| format!("channels[{c}].{f}");
+        let views: Vec<usize> = match &src.views {
+            Some(v) => v.clone(),
+            None => (0..n_views).collect(),
+        };
+        if let Some((i, &v)) = views.iter().enumerate().find(|(_, v)| **v >= n_views) {
+            return Err(Error::invalid(
+                format!("channels[{c}].views[{i}]"),
+                format!("view {v} is beyond the scan's {n_views} views"),
+            ));
+        }
+        let (stack, from) = match (&src.counts, &src.line_integrals) {
+            (Some(s), None) => (read_stack(s, base)?, s),
+            (None, Some(s)) => (read_stack(s, base)?, s),
+            _ => {
+                return Err(Error::invalid(
+                    field("counts"),
+                    "give `counts` (with flat and dark fields) or `line_integrals`, one of them",
+                ));
+            }
+        };
+        let path = base.join(&from.path);
+        let want = [views.len(), rows, cols];
+        if stack.shape() != want {
+            return Err(Error::field(
+                &path,
+                "shape",
+                format!(
+                    "{:?} found; the geometry and the channel's views give [views, rows, cols] = {want:?}",
+                    stack.shape()
+                ),
+            ));
+        }
+        let mut p = if src.counts.is_some() {
+            let flat = match &src.flat {
+                Some(f) => Some(mean_image(f, base, &field("flat"))?),
+                None => shared_flat.clone(),
+            };
+            let dark = match &src.dark {
+                Some(f) => Some(mean_image(f, base, &field("dark"))?),
+                None => shared_dark.clone(),
+            };
+            let Some(flat) = flat else {
+                return Err(Error::invalid(
+                    field("flat"),
+                    "counts need a flat field (the channel's `flat` or the config's)",
+                ));
+            };
+            let dark = dark.unwrap_or_else(|| Array2::zeros((rows, cols)));
+            for (what, img) in [("flat", &flat), ("dark", &dark)] {
+                if img.shape() != [rows, cols] {
+                    return Err(Error::invalid(
+                        field(what),
+                        format!("{:?} found, the detector is [{rows}, {cols}]", img.shape()),
+                    ));
+                }
+            }
+            let (p, n) = line_integrals(stack, flat.view(), dark.view(), config.min_counts)
+                .map_err(|e| e.under(&format!("channels[{c}]")))?;
+            raised.push(n);
+            p
+        } else {
+            raised.push(0);
+            stack
+        };
+        if bottom_up {
+            p.invert_axis(Axis(1));
+        }
+        for (k, &v) in views.iter().enumerate() {
+            projections
+                .slice_mut(s![c, v, .., ..])
+                .assign(&p.index_axis(Axis(0), k));
+            availability[[v, c]] = true;
+        }
+        channels.push(Channel::new(src.label.clone(), src.coordinate.clone()));
+    }
+    normalise_tau(&mut channels)?;
+    let scene = Scene {
+        name: config.name.clone(),
+        geometry,
+        channels,
+        projections,
+        availability,
+        references: None,
+        split: Split::all_train(n_views),
+        provenance: Provenance {
+            generator: format!("prism import {}", env!("CARGO_PKG_VERSION")),
+            config: config_text.to_string(),
+            overrides: Vec::new(),
+            source_data: config.source_data.clone(),
+            licence: config.licence.clone(),
+            created_by: String::new(),
+        },
+        structural: None,
+    };
+    scene.validate()?;
+    Ok(FullScan { scene, raised })
+}
+
+/// `−ln((I − D) / (F − D))` per pixel of every image of `counts`, with `I − D` raised to
+/// `min_counts` where smaller; returns the line integrals and how many pixels were raised.
+/// `F − D ≤ 0` anywhere is an error naming the pixel.
+pub fn line_integrals(
+    mut counts: Array3<f32>,
+    flat: ArrayView2<f32>,
+    dark: ArrayView2<f32>,
+    min_counts: f64,
+) -> Result<(Array3<f32>, usize)> {
+    let beam = &flat - &dark;
+    if let Some(((r, c), v)) = beam
+        .indexed_iter()
+        .find(|(_, v)| v.partial_cmp(&&0.0) != Some(std::cmp::Ordering::Greater))
+    {
+        return Err(Error::invalid(
+            format!("flat[{r}][{c}]"),
+            format!("the flat field does not exceed the dark field there (F − D = {v})"),
+        ));
+    }
+    let mut raised = 0;
+    for mut image in counts.outer_iter_mut() {
+        ndarray::Zip::from(&mut image)
+            .and(&dark)
+            .and(&beam)
+            .for_each(|v, &d, &b| {
+                let net = *v as f64 - d as f64;
+                let net = if net < min_counts {
+                    raised += 1;
+                    min_counts
+                } else {
+                    net
+                };
+                *v = -(net / b as f64).ln() as f32;
+            });
+    }
+    Ok((counts, raised))
+}
+
+/// A flat or dark field: one image, or the mean of a stack.
+fn mean_image(source: &config::ImageSource, base: &Path, field: &str) -> Result<Array2<f32>> {
+    let stack = read_stack(source, base).map_err(|e| e.under(field))?;
+    stack
+        .mean_axis(Axis(0))
+        .ok_or_else(|| Error::invalid(field, "holds no image"))
+}
+
+/// Angles from a `.npy` (any numeric type) or a text file of one value per line (`#` comments).
+fn read_angles(path: &Path) -> Result<Vec<f64>> {
+    if path.extension().is_some_and(|e| e == "npy") {
+        let a = crate::scene::io::read_npy_any(path, "angles")?;
+        return Ok(a.iter().map(|&v| v as f64).collect());
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    text.lines()
+        .enumerate()
+        .map(|(i, l)| (i, l.split('#').next().unwrap_or("").trim()))
+        .filter(|(_, l)| !l.is_empty())
+        .map(|(i, l)| {
+            l.parse::<f64>()
+                .map_err(|e| Error::field(path, format!("line {}", i + 1), e.to_string()))
+        })
+        .collect()
+}
+
+impl Scene {
+    /// The scene with `volumes` (one `[z][y][x]` volume per channel, mm⁻¹) as its references.
+    pub fn with_references(mut self, volumes: Vec<Array3<f32>>) -> Result<Scene> {
+        if volumes.len() != self.n_channels() {
+            return Err(Error::invalid(
+                "references",
+                format!(
+                    "{} volumes for {} channels",
+                    volumes.len(),
+                    self.n_channels()
+                ),
+            ));
+        }
+        let views: Vec<_> = volumes.iter().map(|v| v.view()).collect();
+        let stacked = ndarray::stack(Axis(0), &views)
+            .map_err(|e| Error::invalid("references", e.to_string()))?;
+        self.references = Some(stacked);
+        self.validate()?;
+        Ok(self)
+    }
+
+    /// The scene restricted to `train` and `test` views (indices of `self`'s views; the kept
+    /// views in increasing order, the split pointing into them).
+    pub fn with_views(&self, train: &[usize], test: &[usize]) -> Result<Scene> {
+        let n = self.n_views();
+        if let Some(v) = train.iter().chain(test).find(|&&v| v >= n) {
+            return Err(Error::invalid(
+                "split",
+                format!("view {v} is beyond the scene's {n} views"),
+            ));
+        }
+        let mut keep: Vec<usize> = train.iter().chain(test).copied().collect();
+        keep.sort_unstable();
+        keep.dedup();
+        if keep.len() != train.len() + test.len() {
+            return Err(Error::invalid(
+                "split",
+                "a view is both a training and a test view",
+            ));
+        }
+        let pos = |v: &usize| keep.binary_search(v).unwrap_or(0);
+        let scene = Scene {
+            geometry: self.geometry.with_views(&keep),
+            projections: self.projections.select(Axis(1), &keep),
+            availability: self.availability.select(Axis(0), &keep),
+            structural: self.structural.as_ref().map(|s| s.select(Axis(0), &keep)),
+            split: Split {
+                train: train.iter().map(pos).collect(),
+                test: test.iter().map(pos).collect(),
+            },
+            ..self.clone()
+        };
+        scene.validate()?;
+        Ok(scene)
+    }
+}
