@@ -22,7 +22,8 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(&args.config)
         .with_context(|| format!("reading {}", args.config.display()))?;
-    let config: ImportConfig = prism_domain::yaml::read(&args.config)?;
+    let config: ImportConfig =
+        prism_domain::yaml::parse_with(&text, &args.config, &Default::default())?;
     let base = args.config.parent().unwrap_or(std::path::Path::new("."));
     let bars = Bars::new();
     bars.phase("reading and converting the images", 0);

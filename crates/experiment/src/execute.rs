@@ -339,9 +339,9 @@ pub struct Executed {
     pub failures: Vec<Failure>,
 }
 
-/// Run the selected cells of `plan` (scenes first, in order; then the run cells, `jobs` at a
-/// time in order of their index), skipping finished ones; failures are collected, and a run
-/// cell whose scene failed is not attempted.
+/// Run the selected cells of `plan` (scenes first, in order; then the run cells: in order of
+/// their index one at a time, or `jobs` at a time longest first), skipping finished ones;
+/// failures are collected, and a run cell whose scene failed is not attempted.
 pub fn run_plan(plan: &Plan, out: &Path, sel: &Selection, options: &ExecOptions) -> Executed {
     let done = Mutex::new(Executed::default());
     let mut failed_scenes = std::collections::BTreeSet::new();

@@ -4,6 +4,7 @@
 //! (x = nx/2; z up, y right), two black columns apart. A preview for the eye, not data: voxels
 //! are drawn square whatever their size.
 
+use crate::metrics::quantile;
 use ndarray::ArrayView3;
 
 /// Columns of black between the slices.
@@ -12,13 +13,7 @@ const GAP: usize = 2;
 /// The preview's grey image: width, height and row-major pixels.
 pub(super) fn image(volume: ArrayView3<f32>) -> (usize, usize, Vec<u8>) {
     let (nz, ny, nx) = volume.dim();
-    let mut finite: Vec<f32> = volume.iter().copied().filter(|v| v.is_finite()).collect();
-    let white = if finite.is_empty() {
-        0.0
-    } else {
-        let k = ((finite.len() - 1) as f64 * 0.999).round() as usize;
-        *finite.select_nth_unstable_by(k, f32::total_cmp).1
-    };
+    let white = quantile(volume.iter().copied(), 0.999);
     let scale = if white > 0.0 { 255.0 / white } else { 0.0 };
     // NaN·scale clamps to NaN, which `as u8` maps to 0 (black), as it does negatives.
     let grey = |v: f32| (v * scale).clamp(0.0, 255.0).round() as u8;

@@ -23,14 +23,19 @@ pub fn read_stack(source: &ImageSource, base: &Path) -> Result<Array3<f32>> {
         }
         return read_dir(&path);
     }
-    let a = match &source.raw {
-        Some(layout) => read_raw(&path, layout)?,
-        None => match extension(&path).as_str() {
-            "npy" => crate::scene::io::read_npy_any(&path, "images")?,
-            "tif" | "tiff" => read_tiff(&path)?.into_dyn(),
+    read_file(&path, source.raw.as_ref())
+}
+
+/// One file: a stack, or a single image as a stack of one.
+fn read_file(path: &Path, raw: Option<&RawLayout>) -> Result<Array3<f32>> {
+    let a = match raw {
+        Some(layout) => read_raw(path, layout)?,
+        None => match extension(path).as_str() {
+            "npy" => crate::scene::io::read_npy_any(path, "images")?,
+            "tif" | "tiff" => read_tiff(path)?.into_dyn(),
             other => {
                 return Err(Error::field(
-                    &path,
+                    path,
                     "path",
                     format!(
                         "unknown image format `.{other}` (.npy, .tif, .tiff, or give `raw:` with dtype and shape)"
@@ -39,7 +44,7 @@ pub fn read_stack(source: &ImageSource, base: &Path) -> Result<Array3<f32>> {
             }
         },
     };
-    as_stack(a, &path)
+    as_stack(a, path)
 }
 
 fn extension(path: &Path) -> String {
@@ -86,15 +91,7 @@ fn read_dir(dir: &Path) -> Result<Array3<f32>> {
     }
     let stacks: Vec<Array3<f32>> = files
         .iter()
-        .map(|f| {
-            read_stack(
-                &ImageSource {
-                    path: f.clone(),
-                    raw: None,
-                },
-                Path::new(""),
-            )
-        })
+        .map(|f| read_file(f, None))
         .collect::<Result<_>>()?;
     let first = stacks[0].shape()[1..].to_vec();
     if let Some(k) = stacks.iter().position(|s| s.shape()[1..] != first[..]) {

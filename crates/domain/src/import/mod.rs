@@ -273,16 +273,20 @@ impl Scene {
             ));
         }
         let pos = |v: &usize| keep.binary_search(v).unwrap_or(0);
+        // Field by field: `..self.clone()` would copy the whole projection stack first.
         let scene = Scene {
+            name: self.name.clone(),
             geometry: self.geometry.with_views(&keep),
+            channels: self.channels.clone(),
             projections: self.projections.select(Axis(1), &keep),
             availability: self.availability.select(Axis(0), &keep),
-            structural: self.structural.as_ref().map(|s| s.select(Axis(0), &keep)),
+            references: self.references.clone(),
             split: Split {
                 train: train.iter().map(pos).collect(),
                 test: test.iter().map(pos).collect(),
             },
-            ..self.clone()
+            provenance: self.provenance.clone(),
+            structural: self.structural.as_ref().map(|s| s.select(Axis(0), &keep)),
         };
         scene.validate()?;
         Ok(scene)

@@ -11,6 +11,17 @@ pub use ssim::{Border, Ssim3d, SsimParams, ssim_2d, ssim_3d};
 use crate::{Error, Result};
 use ndarray::{ArrayView3, Axis};
 
+/// The `q`-quantile of the finite values of `a` (the value at rank round((n − 1)·q)); 0 when
+/// there is none. Display windows use it (white at the 99.9th percentile).
+pub fn quantile(a: impl Iterator<Item = f32>, q: f64) -> f32 {
+    let mut v: Vec<f32> = a.filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    let k = ((v.len() - 1) as f64 * q).round() as usize;
+    *v.select_nth_unstable_by(k, f32::total_cmp).1
+}
+
 /// Mean projection PSNR and SSIM, as R²-Gaussian's `metric_proj`: for every view whose reference
 /// has a positive maximum, both images are divided by their own maximum (an image whose maximum is
 /// ≤ 0 is left unscaled), then PSNR (peak 1) and 2-D SSIM (`params`) are averaged over views.

@@ -451,19 +451,13 @@ fn check_npy_size(f: &mut fs::File) -> std::io::Result<()> {
     let Ok(item) = digits.parse::<u64>() else {
         return Ok(());
     };
-    let need = shape
-        .iter()
-        .try_fold(item, |a, &n| a.checked_mul(n))
-        .and_then(|b| b.checked_add(prefix + header_len));
-    match need {
-        Some(n) if n <= file_len => Ok(()),
+    let data = shape.iter().try_fold(item, |a, &n| a.checked_mul(n));
+    let held = file_len - prefix - header_len;
+    match data {
+        Some(bytes) if bytes <= held => Ok(()),
         _ => Err(bad(format!(
-            "its header declares shape {shape:?} of {descr} ({} bytes of data); the file holds {} after its header",
-            shape
-                .iter()
-                .try_fold(item, |a, &n| a.checked_mul(n))
-                .map_or("more than 2⁶⁴".to_string(), |b| b.to_string()),
-            file_len - prefix - header_len
+            "its header declares shape {shape:?} of {descr} ({} bytes of data); the file holds {held} after its header",
+            data.map_or("more than 2⁶⁴".to_string(), |b| b.to_string()),
         ))),
     }
 }

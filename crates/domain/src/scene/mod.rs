@@ -169,22 +169,6 @@ pub struct Channel {
     pub tau: f64,
 }
 
-/// The file-name stem of a channel label: ASCII letters, digits, `-`, `_` and `.` kept, any
-/// other character `_` (run directories write `<stem>.npy` per channel and refuse labels whose
-/// stems collide).
-pub fn file_stem(label: &str) -> String {
-    label
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || "-_.".contains(c) {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect()
-}
-
 impl Channel {
     /// A channel with τ = 0 (call [`normalise_tau`] once all channels are known).
     pub fn new(label: impl Into<String>, coordinate: SpectralCoordinate) -> Self {
@@ -338,9 +322,7 @@ impl Scene {
     /// Reference volume of channel `c`, `[z][y][x]` in mm⁻¹, if the scene has references.
     /// Panics if `c` is out of range.
     pub fn reference(&self, c: usize) -> Option<ArrayView3<'_, f32>> {
-        self.references
-            .as_ref()
-            .map(|r| r.index_axis(ndarray::Axis(0), c))
+        self.references.as_ref().map(|r| r.index_axis(Axis(0), c))
     }
 
     /// Projections of channel `c`, `[view][row][col]`. Panics if `c` is out of range.

@@ -230,16 +230,6 @@ fn xml_escape(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
-/// The `q`-quantile of the finite values of `a` (0 when none).
-pub fn quantile(a: impl Iterator<Item = f32>, q: f64) -> f32 {
-    let mut v: Vec<f32> = a.filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f32::total_cmp);
-    v[((v.len() - 1) as f64 * q).round() as usize]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

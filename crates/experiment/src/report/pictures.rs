@@ -5,11 +5,12 @@
 use super::Context;
 use crate::Result;
 use crate::figures::charts::{Lines, Panel, Series};
-use crate::figures::images::{ColourMap, Grid, Tile, quantile};
+use crate::figures::images::{ColourMap, Grid, Tile};
 use crate::figures::plot::save;
 use crate::plan::StudyPoint;
 use crate::results::RunResult;
 use ndarray::{Array2, Array3, Axis, s};
+use prism_domain::metrics::quantile;
 use prism_domain::metrics::{SsimParams, projection_metrics};
 use prism_domain::scene::Scene;
 use prism_recon::gaussian::cpu_device;

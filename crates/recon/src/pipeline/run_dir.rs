@@ -124,7 +124,16 @@ impl RunDir {
     /// A channel label as a file-name stem: every character but ASCII letters, digits, `-`,
     /// `_` and `.` replaced by `_`.
     pub fn stem(label: &str) -> String {
-        prism_domain::scene::file_stem(label)
+        label
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || "-_.".contains(c) {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect()
     }
 
     /// The file name of a channel's volume: `<stem>.npy` ([`RunDir::stem`]).
