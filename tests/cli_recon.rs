@@ -389,3 +389,94 @@ fn an_r2_gaussian_case_folder_is_a_scene() {
     let (ok, t) = prism(&["recon", path(&sart), "-s", path(&case), "-o", path(&run)]);
     assert!(ok && run.join("r2.npy").is_file(), "{t}");
 }
+
+/// `recon --dry-run` itemises the estimated peak memory and writes nothing; a run whose
+/// estimate exceeds the memory available is refused before it starts, unless `--allow-memory`
+/// (here: a densification cap of 10¹² Gaussians).
+#[test]
+fn recon_estimates_its_memory_and_refuses_what_cannot_fit() {
+    let (dir, scene) = common::simulated("mem", 4, 16, 16, &[70]);
+    let cfg = dir.path().join("r2gs.yaml");
+    std::fs::write(
+        &cfg,
+        "method: r2gs\niterations: 4\ninit: { n_points: 200 }\n\
+         densify: { from: 1, until: 3, every: 1, max_gaussians: 1000 }\n",
+    )
+    .unwrap();
+    let out = dir.path().join("run");
+    let args = |extra: &[&'static str]| {
+        let mut a = vec!["recon", path(&cfg), "-s", path(&scene), "-o", path(&out)];
+        a.extend_from_slice(extra);
+        a.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    let run = |a: Vec<String>| prism(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let (ok, t) = run(args(&["--dry-run"]));
+    assert!(ok, "{t}");
+    for needle in [
+        "1000 Gaussians (at the densification cap; 200 at the start)",
+        "the scene: projections (1 × 6 views × 16×16)",
+        "estimated peak",
+    ] {
+        assert!(t.contains(needle), "`{needle}` not in:\n{t}");
+    }
+    assert!(!out.exists(), "a dry run writes nothing");
+    let huge = ["--set", "densify.max_gaussians=1000000000000"];
+    let (ok, t) = run(args(&huge));
+    assert!(
+        !ok && t.contains("--allow-memory") && t.contains("r2gs"),
+        "{t}"
+    );
+    assert!(!out.exists(), "a refused run writes nothing");
+    // Overridden, the run goes ahead (and stays small: the cap is never reached).
+    let (ok, t) = run(args(&[huge[0], huge[1], "--allow-memory"]));
+    assert!(ok, "{t}");
+}
+
+/// `prism bench iteration` measures the window after densification: one row per channel with
+/// the Gaussian count of `train.json`, allocations seen by the counting allocator, and the
+/// must-move bytes of its formula (36·11·K + 12·pixels + 8·patch voxels).
+#[test]
+fn bench_iteration_reports_allocations_against_the_traffic_bound() {
+    let (dir, scene) = simulated("iter", 4, 16, 16, &[40, 70]);
+    let cfg = dir.path().join("r2gs.yaml");
+    std::fs::write(
+        &cfg,
+        "method: r2gs\niterations: 12\ninit: { n_points: 300 }\n\
+         densify: { from: 1, until: 4, every: 2 }\nloss: { tv_patch: 8 }\n",
+    )
+    .unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_prism"))
+        .args(["bench", "iteration", path(&cfg), "-s", path(&scene)])
+        .args(["--window", "5"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let rows = v["stages"].as_array().unwrap();
+    assert_eq!(rows.len(), 2, "{v}");
+    for r in rows {
+        let k = r["gaussians"].as_f64().unwrap();
+        assert!(k > 0.0, "{r}");
+        let must = 36.0 * 11.0 * k + 12.0 * 16.0 * 16.0 + 8.0 * 512.0;
+        assert_eq!(r["must_move_bytes"].as_f64().unwrap(), must, "{r}");
+        assert!(r["allocated_bytes"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["allocations"].as_f64().unwrap() >= 1.0, "{r}");
+        assert!(r["iteration_s"].as_f64().unwrap() > 0.0, "{r}");
+    }
+    assert!(
+        v["copy_bandwidth_bytes_per_s"].as_f64().unwrap() > 1e8,
+        "{v}"
+    );
+    // A window reaching into densification is refused.
+    let (ok, t) = prism(&[
+        "bench",
+        "iteration",
+        path(&cfg),
+        "-s",
+        path(&scene),
+        "--window",
+        "10",
+    ]);
+    assert!(!ok && t.contains("--window 10"), "{t}");
+}

@@ -149,3 +149,65 @@ fn set_overrides_change_the_scene_and_are_recorded() {
     ]);
     assert!(!ok && t.contains("key.path=value"), "{t}");
 }
+
+/// Sizes whose arrays could not exist, or would not fit in the memory available, are refused
+/// before anything is allocated, naming the field; `--dry-run` itemises the estimate. A scene
+/// file edited to such a size is refused by `info` and `recon` alike.
+#[test]
+fn sizes_are_checked_before_anything_is_allocated() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("scene");
+    let out_s = out.to_str().unwrap();
+    let cfg = write(dir.path(), "ok.yaml", &tiny());
+    let (ok, t) = prism(&["simulate", &cfg, "-o", out_s, "--dry-run"]);
+    assert!(ok, "{t}");
+    for needle in [
+        "estimated peak",
+        "projections (2 channels × 7 views × 24×32",
+    ] {
+        assert!(t.contains(needle), "`{needle}` not in:\n{t}");
+    }
+    assert!(!out.exists(), "a dry run writes nothing");
+    let cases = [
+        // 10⁵ cubed: 10¹⁵ voxels (the process used to abort on a 2.8·10¹⁶-byte allocation).
+        (tiny().replace("n: 16", "n: 100000"), "geometry.volume.n"),
+        // 2²² cubed overflows 64 bits.
+        (tiny().replace("n: 16", "n: 4194304"), "geometry.volume.n"),
+        // 10¹² views (memory used to grow until the process was killed).
+        (
+            tiny().replace("views: 5", "views: 1000000000000"),
+            "geometry.views",
+        ),
+        // Countable but far beyond any machine: 10⁵ × 10⁵ pixels, 3000³ voxels.
+        (
+            tiny().replace("rows: 24, cols: 32", "rows: 100000, cols: 100000"),
+            "--allow-memory",
+        ),
+        (tiny().replace("n: 16", "n: 3000"), "--allow-memory"),
+    ];
+    for (body, needle) in cases {
+        let bad = write(dir.path(), "big.yaml", &body);
+        let (ok, t) = prism(&["simulate", &bad, "-o", out_s]);
+        assert!(!ok, "expected a refusal naming {needle}");
+        assert!(t.contains(needle) && t.contains("big.yaml"), "{t}");
+        assert!(!out.exists(), "nothing may be written on refusal");
+    }
+    // A simulated scene whose file is edited to a 2²²-cubed grid.
+    let (ok, t) = prism(&["simulate", &cfg, "-o", out_s]);
+    assert!(ok, "{t}");
+    let yaml = std::fs::read_to_string(out.join("scene.yaml")).unwrap();
+    let edited = ["nx", "ny", "nz"].iter().fold(yaml.clone(), |y, a| {
+        y.replace(&format!("{a}: 16\n"), &format!("{a}: 4194304\n"))
+    });
+    assert_ne!(
+        edited, yaml,
+        "the grid's counts are not where the test expects them"
+    );
+    std::fs::write(out.join("scene.yaml"), edited).unwrap();
+    let (ok, t) = prism(&["info", out_s]);
+    assert!(!ok && t.contains("volume.n") && t.contains("2^40"), "{t}");
+    let run = dir.path().join("run");
+    let fdk = write(dir.path(), "fdk.yaml", "method: fdk\n");
+    let (ok, t) = prism(&["recon", &fdk, "-s", out_s, "-o", run.to_str().unwrap()]);
+    assert!(!ok && t.contains("2^40"), "{t}");
+}

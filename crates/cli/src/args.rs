@@ -155,3 +155,33 @@ impl DeviceArg {
         }
     }
 }
+
+/// `--dry-run` and `--allow-memory`: a command's peak-memory estimate, printed or checked.
+#[derive(clap::Args)]
+pub struct MemoryArgs {
+    /// Print the estimated peak memory, item by item, and stop.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// Run even when the estimated peak memory exceeds the memory available.
+    #[arg(long)]
+    pub allow_memory: bool,
+}
+
+impl MemoryArgs {
+    /// With `--dry-run`, print `estimate` under `config`'s name and return `false` (stop);
+    /// otherwise refuse it above the memory available (unless `--allow-memory`, naming `what`)
+    /// and return `true` (go on).
+    pub fn proceed(
+        &self,
+        config: &std::path::Path,
+        what: &str,
+        estimate: &prism_domain::memory::Footprint,
+    ) -> anyhow::Result<bool> {
+        if self.dry_run {
+            println!("{}: peak memory\n{}", config.display(), estimate.describe());
+            return Ok(false);
+        }
+        estimate.check(what, self.allow_memory)?;
+        Ok(true)
+    }
+}

@@ -1,11 +1,11 @@
 //! `prism recon <config.yaml> -s <scene_dir> -o <run_dir>`: reconstruct every channel of a scene
 //! with any method (`configs/recon/`), through `prism_recon::pipeline::run`.
 
-use crate::args::{EvalArgs, GaussianArgs, OutArgs, SetArgs};
+use crate::args::{EvalArgs, GaussianArgs, MemoryArgs, OutArgs, SetArgs};
 use crate::progress::Bars;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
-use prism_recon::pipeline::{RunDir, run};
+use prism_recon::pipeline::{RunDir, footprint, run};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -24,12 +24,21 @@ pub struct ReconArgs {
     #[command(flatten)]
     eval: EvalArgs,
     #[command(flatten)]
+    memory: MemoryArgs,
+    #[command(flatten)]
     set: SetArgs,
 }
 
 pub fn run_cmd(args: ReconArgs) -> anyhow::Result<()> {
     let mut config = MethodConfig::load_with(&args.config, &args.set.overrides()?)?;
     let scene = Scene::open(&args.scene)?;
+    let what = format!("{} on {}", config.method().name(), args.scene.display());
+    if !args
+        .memory
+        .proceed(&args.config, &what, &footprint(&config, &scene))?
+    {
+        return Ok(());
+    }
     let evaluation = args.eval.evaluation()?;
     let bars = Bars::new();
     let options = args.gaussian.options(&mut config, &bars, &evaluation)?;

@@ -1,10 +1,10 @@
 //! `prism simulate <config.yaml> -o <scene_dir> [--set key=value …]`.
 
-use crate::args::SetArgs;
+use crate::args::{MemoryArgs, SetArgs};
 use crate::progress::Bars;
 use anyhow::Context;
 use prism_domain::observe::Observer;
-use prism_domain::simulate::{SimulateConfig, simulate_file};
+use prism_domain::simulate::{SimulateConfig, simulate};
 use prism_domain::yaml::Overrides;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -22,6 +22,8 @@ pub struct Args {
     #[arg(long)]
     paper_scale: bool,
     #[command(flatten)]
+    memory: MemoryArgs,
+    #[command(flatten)]
     set: SetArgs,
 }
 
@@ -33,7 +35,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let overrides = overrides.then(&args.set.overrides()?);
     let start = Instant::now();
     let bars = Bars::new();
-    let scene = simulate_file(&args.config, &overrides, &bars)?;
+    let cfg = SimulateConfig::load_with(&args.config, &overrides)?;
+    let footprint = cfg.footprint().map_err(|e| e.in_file(&args.config))?;
+    let what = format!("simulating {}", args.config.display());
+    if !args.memory.proceed(&args.config, &what, &footprint)? {
+        return Ok(());
+    }
+    let mut scene = simulate(&cfg, Some(&args.config), &bars)?;
+    scene.provenance.overrides = overrides.texts();
     bars.phase(&format!("writing {}", args.output.display()), 0);
     scene
         .save(&args.output)

@@ -13,6 +13,7 @@ pub mod error;
 pub mod export;
 pub mod geometry;
 pub mod import;
+pub mod memory;
 pub mod metrics;
 pub mod observe;
 pub mod phantom;

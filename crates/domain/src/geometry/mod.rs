@@ -166,6 +166,7 @@ impl VolumeGrid {
         for (k, o) in self.offset.iter().enumerate() {
             finite(format!("offset[{k}]"), *o)?;
         }
+        crate::memory::elements("n", &[self.nz, self.ny, self.nx])?;
         Ok(())
     }
 }
@@ -298,6 +299,7 @@ impl Geometry {
         for (i, a) in self.angles_rad.iter().enumerate() {
             finite(format!("angles_rad[{i}]"), *a)?;
         }
+        crate::memory::elements("detector", &[self.angles_rad.len(), d.rows, d.cols])?;
         // The whole volume must lie between the source and the detector.
         let (lo, hi) = self.volume.bounds();
         let reach = lo

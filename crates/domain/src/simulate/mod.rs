@@ -15,6 +15,7 @@
 //!    drops some (view, channel) pairs), provenance.
 
 use crate::geometry::{Beam, Detector, Geometry, VolumeGrid};
+use crate::memory::{self, Footprint};
 use crate::observe::Observer;
 use crate::phantom::hu::{HuMapping, hu_material_volumes};
 use crate::phantom::{MaterialVolumes, SpectralPhantom};
@@ -170,6 +171,50 @@ impl GeometrySpec {
 }
 
 impl SimulateConfig {
+    /// The simulation's peak memory, estimated from the config's counts before anything is
+    /// built (an upper bound: every material of the tables is assumed present); an error names
+    /// the count whose arrays could not exist.
+    pub fn footprint(&self) -> Result<Footprint> {
+        let g = &self.geometry;
+        let n = g.volume.n;
+        let voxels = memory::elements("geometry.volume.n", &[n, n, n])?;
+        let views = g.views.saturating_add(g.test_views);
+        let (rows, cols) = (g.detector.rows, g.detector.cols);
+        let pixels = memory::elements("geometry.views", &[views, rows, cols])?;
+        let materials = crate::physics::Material::ALL.len();
+        let channels = self.channels.len() + usize::from(self.structural.is_some());
+        let stack = format!("{views} views × {rows}×{cols}");
+        let mut f = Footprint::default();
+        f.add(
+            format!("material line integrals (≤ {materials} materials × {stack})"),
+            memory::bytes(pixels, 4 * materials),
+        );
+        f.add(
+            format!("material fractions (≤ {materials} × {n}³)"),
+            memory::bytes(voxels, 4 * materials),
+        );
+        if let ObjectSpec::Hu { .. } = self.object {
+            let k = HU_PROJECTION_OVERSAMPLING;
+            let fine = memory::elements("geometry.volume.n", &[n * k, n * k, n * k])?;
+            f.add(
+                format!(
+                    "fractions on the {k}× finer projection grid (≤ {materials} × {}³)",
+                    n * k
+                ),
+                memory::bytes(fine, 4 * materials),
+            );
+        }
+        f.add(
+            format!("projections ({channels} channels × {stack}, and the scene's copy)"),
+            memory::bytes(pixels, 8 * channels),
+        );
+        f.add(
+            format!("reference volumes ({} × {n}³)", self.channels.len()),
+            memory::bytes(voxels, 4 * self.channels.len()),
+        );
+        Ok(f)
+    }
+
     /// Read a config file; errors name the file.
     pub fn load(path: &Path) -> Result<Self> {
         Self::load_with(path, &Overrides::default())
@@ -318,6 +363,8 @@ fn simulate_unnamed(
             "at least one channel is required",
         ));
     }
+    // Counts whose arrays could not exist are refused before anything is built.
+    cfg.footprint()?;
     for (i, ch) in cfg.channels.iter().enumerate() {
         ch.validate()
             .map_err(|e| e.under(&format!("channels[{i}]")))?;

@@ -102,7 +102,7 @@ pub fn blocks(n: usize, block_size: usize) -> Vec<Vec<usize>> {
 }
 
 /// Memory budget for caching the per-block column sums (bytes).
-const V_CACHE_BYTES: usize = 512 << 20;
+pub const V_CACHE_BYTES: usize = 512 << 20;
 
 /// Reconstruct from `b` (`[view][row][col]`, all views of `a`'s geometry) starting at `x0`
 /// (zeros when `None`); `progress(epoch)` is called after every epoch.

@@ -106,7 +106,7 @@ impl Default for GaussianConfig {
 #[serde(default, deny_unknown_fields)]
 pub struct ProjectionConfig {
     /// `affine` (R²-Gaussian's splat; a first-order approximation in cone beam) or `exact` (the
-    /// closed-form integral along every pixel's ray; on the CPU about 16× the cost).
+    /// closed-form integral along every pixel's ray; on the CPU about 27× the render cost).
     pub mode: ProjectionMode,
     /// A pixel receives a Gaussian only if its ray passes within `cutoff` standard deviations of
     /// the centre (upstream 3: the dropped tail is e^{−cutoff²/2} = 1.1 % of the peak).

@@ -255,10 +255,49 @@ fn initial_scales_are_the_lattice_spacing_and_models_round_trip() {
         e.contains("negative.safetensors") && e.contains("metadata.density_scale"),
         "{e}"
     );
-    // A corrupted file names the file and the problem.
-    std::fs::write(&path, b"nonsense").unwrap();
-    let e = load_model(&path, &dev).err().unwrap().to_string();
-    assert!(e.contains("g.safetensors"), "{e}");
+    // Forged files: each is refused with the file's name, before any tensor is built from it.
+    let good = std::fs::read(&again).unwrap();
+    let header_len = u64::from_le_bytes(good[..8].try_into().unwrap()) as usize;
+    let header = String::from_utf8(good[8..8 + header_len].to_vec()).unwrap();
+    let with_header = |h: &str| {
+        let mut h = h.to_string();
+        while !h.len().is_multiple_of(8) {
+            h.push(' ');
+        }
+        let mut b = (h.len() as u64).to_le_bytes().to_vec();
+        b.extend_from_slice(h.as_bytes());
+        b.extend_from_slice(&good[8 + header_len..]);
+        b
+    };
+    let k = host.len();
+    let mut huge_len = good.clone();
+    huge_len[..8].copy_from_slice(&(1u64 << 62).to_le_bytes());
+    let forged: [(&str, Vec<u8>); 6] = [
+        ("nonsense", b"nonsense".to_vec()),
+        ("a header length of 2^62 bytes", huge_len),
+        ("the data cut short", good[..good.len() - 12].to_vec()),
+        (
+            "means claiming more rows than the data holds",
+            with_header(&header.replacen(&format!("[{k},3]"), &format!("[{},3]", k * 1000), 1)),
+        ),
+        (
+            "one tensor with fewer Gaussians than the others",
+            with_header(&header.replacen(&format!("[{k},4]"), &format!("[{},4]", k - 1), 1)),
+        ),
+        (
+            "more channels in the metadata than density columns",
+            with_header(
+                &header.replace(r#"\"channels\":[\"a\"]"#, r#"\"channels\":[\"a\",\"b\"]"#),
+            ),
+        ),
+    ];
+    for (what, bytes) in forged {
+        assert_ne!(bytes, good, "{what}: the forgery changed nothing");
+        std::fs::write(&path, &bytes).unwrap();
+        let e = load_model(&path, &dev).err().map(|e| e.to_string());
+        let e = e.unwrap_or_else(|| panic!("{what}: loaded"));
+        assert!(e.contains("g.safetensors"), "{what}: {e}");
+    }
 }
 
 #[test]

@@ -4,11 +4,13 @@
 
 pub mod ablation;
 mod classic;
+mod footprint;
 mod gaussian;
 mod naf;
 mod run_dir;
 mod setup;
 
+pub use footprint::{footprint, footprint_with};
 pub use run_dir::{Manifest, RunDir};
 pub use setup::{Outcome, RunOptions};
 

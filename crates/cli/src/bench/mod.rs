@@ -1,8 +1,13 @@
-//! `prism bench classic`: the classic-CT benchmark (ours vs RTK in one run), one JSON object on
-//! stdout. RTK runs through `$PRISM_PYTHON` (default `python3`) when `itk-rtk` is importable and
-//! is skipped with a message otherwise.
+//! `prism bench`: benchmarks that print one JSON object on stdout.
+//!
+//! `classic`: the classic-CT benchmark (ours vs RTK in one run). RTK runs through `$PRISM_PYTHON`
+//! (default `python3`) when `itk-rtk` is importable and is skipped with a message otherwise.
+//! `iteration`: memory traffic of an R²-Gaussian training iteration ([`iteration`]).
 
 use crate::progress::Bars;
+#[cfg(not(target_env = "msvc"))]
+mod iteration;
+
 use prism_recon::classic::bench::{BenchOptions, ordering, run as run_classic};
 
 #[derive(clap::Args)]
@@ -15,6 +20,9 @@ pub struct Args {
 enum Which {
     /// Joseph FP/BP, FDK, SART, CGLS at 128³ / 256² / 50 views on the phantom, with RTK's side.
     Classic(ClassicArgs),
+    /// Bytes an R²-Gaussian iteration allocates and must move, against the copy bandwidth.
+    #[cfg(not(target_env = "msvc"))]
+    Iteration(iteration::IterationArgs),
 }
 
 #[derive(clap::Args)]
@@ -43,7 +51,15 @@ struct ClassicArgs {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let Which::Classic(a) = args.which;
+    let a = match args.which {
+        Which::Classic(a) => a,
+        #[cfg(not(target_env = "msvc"))]
+        Which::Iteration(a) => {
+            let value = iteration::run_iteration(a)?;
+            println!("{}", serde_json::to_string_pretty(&value)?);
+            return Ok(());
+        }
+    };
     let bars = Bars::new();
     let value = if a.ordering_only {
         ordering(&bars)?

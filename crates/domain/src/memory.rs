@@ -1,0 +1,147 @@
+//! Sizes before anything is allocated: checked element counts for every shape read from a file
+//! or a config, and peak-memory estimates ([`Footprint`]) that a command prints with `--dry-run`
+//! and refuses above the memory the machine has available.
+
+use crate::{Error, Result};
+use serde::Serialize;
+
+/// The most elements one array may hold (2⁴⁰: 4 TiB of f32). Larger counts are refused as
+/// input errors before any arithmetic on them can overflow.
+pub const MAX_ELEMENTS: usize = 1 << 40;
+
+/// The product of `dims`, or an error naming `field` when it overflows or exceeds
+/// [`MAX_ELEMENTS`].
+pub fn elements(field: &str, dims: &[usize]) -> Result<usize> {
+    let shape = dims
+        .iter()
+        .map(|d| d.to_string())
+        .collect::<Vec<_>>()
+        .join(" × ");
+    match dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)) {
+        Some(n) if n <= MAX_ELEMENTS => Ok(n),
+        _ => Err(Error::invalid(
+            field,
+            format!("{shape} elements: more than one array can hold (2^40)"),
+        )),
+    }
+}
+
+/// Bytes of `n` elements of `size` bytes, saturating (estimates only).
+pub fn bytes(n: usize, size: usize) -> u64 {
+    (n as u64).saturating_mul(size as u64)
+}
+
+/// What a computation holds at its peak, item by item (an estimate, in bytes).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Footprint {
+    pub items: Vec<(String, u64)>,
+}
+
+impl Footprint {
+    /// Add an item.
+    pub fn add(&mut self, what: impl Into<String>, bytes: u64) -> &mut Self {
+        self.items.push((what.into(), bytes));
+        self
+    }
+
+    /// The estimated peak, bytes.
+    pub fn total(&self) -> u64 {
+        self.items.iter().fold(0u64, |a, i| a.saturating_add(i.1))
+    }
+
+    /// One line per item and the total, for `--dry-run`.
+    pub fn describe(&self) -> String {
+        let mut s = String::new();
+        for (what, b) in &self.items {
+            s.push_str(&format!("  {:>10}  {what}\n", human(*b)));
+        }
+        s.push_str(&format!("  {:>10}  estimated peak", human(self.total())));
+        if let Some(a) = available() {
+            s.push_str(&format!(" ({} available)", human(a)));
+        }
+        s
+    }
+
+    /// Refuse when the estimate exceeds the memory available (unless `allow`); `what` names the
+    /// computation in the error.
+    pub fn check(&self, what: &str, allow: bool) -> Result<()> {
+        match available() {
+            Some(a) if !allow && self.total() > a => Err(Error::invalid(
+                "memory",
+                format!(
+                    "{what} needs about {} at its peak (estimate; `--dry-run` itemises it) but \
+                     {} is available; make the problem smaller, or pass --allow-memory to run \
+                     anyway",
+                    human(self.total()),
+                    human(a)
+                ),
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// Memory the kernel says is available for new allocations (`MemAvailable`), bytes; `None`
+/// where it cannot be read (no `/proc/meminfo`), in which case nothing is refused.
+pub fn available() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb.saturating_mul(1024))
+}
+
+/// `12.3 MB`, `4.0 GB`, … (decimal units).
+pub fn human(bytes: u64) -> String {
+    let b = bytes as f64;
+    match bytes {
+        0..1_000_000 => format!("{:.1} kB", b / 1e3),
+        1_000_000..1_000_000_000 => format!("{:.1} MB", b / 1e6),
+        1_000_000_000..1_000_000_000_000 => format!("{:.1} GB", b / 1e9),
+        _ => format!("{:.1} TB", b / 1e12),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn element_counts_overflowing_or_beyond_the_limit_are_refused() {
+        assert_eq!(elements("volume", &[64, 64, 64]).unwrap(), 262_144);
+        assert_eq!(elements("empty", &[]).unwrap(), 1);
+        // 2²² cubed = 2⁶⁶ overflows usize; 10⁵ cubed = 10¹⁵ is below usize::MAX but above 2⁴⁰.
+        for dims in [[1 << 22; 3], [100_000; 3]] {
+            let e = elements("volume.n", &dims).unwrap_err().to_string();
+            assert!(e.contains("volume.n") && e.contains("2^40"), "{e}");
+        }
+        assert_eq!(elements("x", &[1 << 20, 1 << 20]).unwrap(), MAX_ELEMENTS);
+        assert!(elements("x", &[(1 << 20) + 1, 1 << 20]).is_err());
+    }
+
+    #[test]
+    fn footprints_sum_saturating_and_refuse_beyond_what_is_available() {
+        let mut f = Footprint::default();
+        f.add("a", 3).add("b", u64::MAX);
+        assert_eq!(f.total(), u64::MAX);
+        if available().is_some() {
+            let e = f.check("the test", false).unwrap_err().to_string();
+            assert!(
+                e.contains("--allow-memory") && e.contains("the test"),
+                "{e}"
+            );
+        }
+        f.check("the test", true).unwrap();
+        let mut small = Footprint::default();
+        small.add("one kB", 1000);
+        small.check("a small job", false).unwrap();
+        assert!(small.describe().contains("1.0 kB  one kB"));
+    }
+
+    #[test]
+    fn human_sizes_use_decimal_units() {
+        assert_eq!(human(999), "1.0 kB");
+        assert_eq!(human(2_500_000), "2.5 MB");
+        assert_eq!(human(4_000_000_000), "4.0 GB");
+        assert_eq!(human(2_800_000_000_000_000), "2800.0 TB");
+    }
+}

@@ -1,0 +1,168 @@
+//! A run's peak memory, estimated before it starts (`prism recon --dry-run` prints it; `recon`
+//! refuses a run above the memory available unless `--allow-memory`).
+//!
+//! Every method holds the scene (projections and reference volumes) and its output volumes.
+//! On top of that, per channel (channels run one after another):
+//! * classic methods: the filtered projections or residuals of one channel and a few volumes;
+//! * Gaussian methods: the Gaussians with their gradients and Adam moments, the iteration's
+//!   transient tensors (per Gaussian, per detector pixel, per TV-patch voxel) and the evaluation's
+//!   volume-sized buffers. The Gaussian count is not known before training: the estimate is given
+//!   at the densification cap (`densify.max_gaussians`, what a run may reach) and is the one
+//!   compared with the memory available;
+//! * NAF: the hash grid's tables with their Adam moments and one batch of samples.
+//!
+//! The per-item constants were measured with `/usr/bin/time -v` (peak resident size) on runs of
+//! known size; see [`GAUSSIAN_BYTES`] and [`PROCESS_BYTES`].
+
+use crate::MethodConfig;
+use crate::classic::ClassicMethod;
+use crate::classic::sart::V_CACHE_BYTES;
+use crate::gaussian::config::GaussianMethod;
+use prism_domain::memory::{Footprint, bytes};
+use prism_domain::scene::Scene;
+
+/// The process before any data: code, the allocator's arenas, thread stacks (measured: `prism
+/// info` holds 22 MB with a 3.6 MB scene).
+pub const PROCESS_BYTES: u64 = 20_000_000;
+
+/// Bytes per Gaussian at a training iteration's peak, plus 16 per density column: the
+/// parameters with gradients and two Adam moments, the render's per-Gaussian preparation, tile
+/// lists and the autodiff graph's saved tensors. Measured: the slope of peak resident size
+/// against the Gaussian count, 1 990 bytes per Gaussian (R²-Gaussian, one 70 keV channel of
+/// phantom-4mono at 64³ / 96², 100 iterations without densification from 20 000 and 53 222
+/// Gaussians: 78.4 and 142.9 MiB).
+pub const GAUSSIAN_BYTES: u64 = 1_980;
+
+/// R²-Gaussian trains the channels one after another; pages the allocator keeps from one channel
+/// stay resident beside the next channel's (they are handed back lazily, see the binary's
+/// allocator settings). Measured as a fraction of one channel's Gaussian working set per further
+/// channel: phantom-4mono, 500 iterations (K up to 61 618): 232 MB peak against 185 MB without
+/// this term, after the one-channel calibration above had the rest 8 MB high: 0.148.
+pub const RETAINED_PER_CHANNEL: f64 = 0.148;
+
+/// Bytes per detector pixel of one view at an iteration's peak (image, target, SSIM maps).
+pub const PIXEL_BYTES: u64 = 200;
+
+/// Bytes per voxel of the evaluation (voxelised volume, 3-D SSIM's f64 moment maps) and of a
+/// classic method's working volumes.
+pub const VOXEL_BYTES: u64 = 64;
+
+/// The estimated peak memory of running `config` on `scene` (Gaussian methods at their
+/// densification cap).
+pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
+    footprint_with(config, scene, None)
+}
+
+/// [`footprint`] with Gaussian methods at `gaussians` Gaussians (a count a run reported) instead
+/// of the cap.
+pub fn footprint_with(config: &MethodConfig, scene: &Scene, gaussians: Option<usize>) -> Footprint {
+    let g = &scene.geometry;
+    let voxels = g.volume.len();
+    let (rows, cols) = (g.detector.rows, g.detector.cols);
+    let channels = scene.n_channels();
+    let views = scene.n_views();
+    let mut f = Footprint::default();
+    f.add("the process (code, allocator, threads)", PROCESS_BYTES);
+    f.add(
+        format!("the scene: projections ({channels} × {views} views × {rows}×{cols})"),
+        bytes(scene.projections.len(), 4),
+    );
+    if let Some(r) = &scene.references {
+        f.add("the scene: reference volumes", bytes(r.len(), 4));
+    }
+    f.add(
+        format!("output volumes ({channels} × {voxels} voxels)"),
+        bytes(voxels, 4 * channels),
+    );
+    let view_pixels = rows * cols;
+    match config {
+        MethodConfig::Classic(c) => {
+            f.add(
+                "one channel's filtered projections or residuals",
+                bytes(views * view_pixels, 8),
+            );
+            f.add("working volumes", bytes(voxels, VOXEL_BYTES as usize));
+            if c.method == ClassicMethod::Sart {
+                let blocks = views.div_ceil(c.block_size.max(1));
+                let cached = bytes(voxels, 4 * blocks);
+                f.add(
+                    format!("SART's column sums of {blocks} blocks (kept when ≤ 512 MiB)"),
+                    if cached <= V_CACHE_BYTES as u64 {
+                        cached
+                    } else {
+                        bytes(voxels, 4)
+                    },
+                );
+            }
+        }
+        MethodConfig::Gaussian(c) => {
+            let cap = c
+                .densify
+                .as_ref()
+                .map_or(c.init.n_points, |d| d.max_gaussians.max(c.init.n_points));
+            let (k, which) = match gaussians {
+                Some(k) => (k, "as given"),
+                None => (cap, "at the densification cap"),
+            };
+            let columns = match c.method {
+                GaussianMethod::FourDsg => channels,
+                GaussianMethod::R2gs | GaussianMethod::Stage1 => 1,
+            };
+            f.add(
+                "the FDK initialisation (volume and its filtered projections)",
+                bytes(voxels, 8).saturating_add(bytes(views * view_pixels, 4)),
+            );
+            f.add(
+                format!(
+                    "{k} Gaussians ({which}; {} at the start), with gradients, Adam moments and \
+                     an iteration's transients",
+                    c.init.n_points
+                ),
+                bytes(k, (GAUSSIAN_BYTES + 16 * columns as u64) as usize),
+            );
+            if c.method == GaussianMethod::R2gs && channels > 1 {
+                let working = bytes(k, GAUSSIAN_BYTES as usize) as f64;
+                f.add(
+                    format!(
+                        "pages kept from earlier channels ({} × {:.0} % of the Gaussians' working \
+                         set)",
+                        channels - 1,
+                        100.0 * RETAINED_PER_CHANNEL
+                    ),
+                    ((channels - 1) as f64 * RETAINED_PER_CHANNEL * working) as u64,
+                );
+            }
+            f.add(
+                format!("an iteration's images ({columns} × {rows}×{cols})"),
+                bytes(view_pixels, (PIXEL_BYTES * columns as u64) as usize),
+            );
+            f.add(
+                "evaluation buffers (voxelised volume, 3-D SSIM)",
+                bytes(voxels, VOXEL_BYTES as usize),
+            );
+        }
+        MethodConfig::Naf(c) => {
+            let h = &c.field.hash_grid;
+            let table = h.levels * (1usize << h.log2_table_size.min(40)) * h.features;
+            f.add(
+                "hash-grid tables with gradients and Adam moments",
+                bytes(table, 16),
+            );
+            let samples = c.rays_per_batch.saturating_mul(c.samples_per_ray);
+            f.add(
+                format!(
+                    "one batch of {samples} samples through the network (forward and backward)"
+                ),
+                bytes(
+                    samples,
+                    8 * (c.field.width * c.field.layers + h.levels * h.features),
+                ),
+            );
+            f.add(
+                "evaluation buffers (queried volume, 3-D SSIM)",
+                bytes(voxels, VOXEL_BYTES as usize),
+            );
+        }
+    }
+    f
+}
