@@ -20,6 +20,7 @@
 use crate::alloc::{Allocated, allocated};
 use crate::args::{EvalArgs, SetArgs};
 use crate::progress::Bars;
+use prism_domain::metrics::quantile;
 use prism_domain::observe::{Level, Observer};
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
@@ -110,11 +111,6 @@ fn copy_bandwidth() -> f64 {
         .fold(0.0, f64::max)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 pub fn run_iteration(a: IterationArgs) -> anyhow::Result<serde_json::Value> {
     let mut config = MethodConfig::load_with(&a.config, &a.set.overrides()?)?;
     let MethodConfig::Gaussian(g) = &mut config else {
@@ -202,7 +198,7 @@ pub fn run_iteration(a: IterationArgs) -> anyhow::Result<serde_json::Value> {
             })
             .collect();
         let n = per.len() as f64;
-        let time_s = median(per.iter().map(|p| p.0).collect());
+        let time_s = quantile(per.iter().map(|p| p.0 as f32), 0.5) as f64;
         let bytes = per.iter().map(|p| p.1 as f64).sum::<f64>() / n;
         let calls = per.iter().map(|p| p.2 as f64).sum::<f64>() / n;
         let k = report.n_gaussians as u64;

@@ -97,12 +97,23 @@ impl SartOptions {
 
 /// Interleaved blocks of at most `block_size` views over `n` views.
 pub fn blocks(n: usize, block_size: usize) -> Vec<Vec<usize>> {
-    let m = n.div_ceil(block_size.clamp(1, n.max(1)));
+    let m = block_count(n, block_size);
     (0..m).map(|s| (s..n).step_by(m).collect()).collect()
 }
 
+/// How many blocks [`blocks`] makes.
+pub fn block_count(n: usize, block_size: usize) -> usize {
+    n.div_ceil(block_size.clamp(1, n.max(1)))
+}
+
 /// Memory budget for caching the per-block column sums (bytes).
-pub const V_CACHE_BYTES: usize = 512 << 20;
+const V_CACHE_BYTES: usize = 512 << 20;
+
+/// Whether the column sums of `blocks` blocks over `voxels` voxels are all kept (they fit in the
+/// 512 MiB budget) rather than recomputed, one block at a time, at every visit.
+pub fn caches_column_sums(blocks: usize, voxels: usize) -> bool {
+    blocks.saturating_mul(voxels).saturating_mul(4) <= V_CACHE_BYTES
+}
 
 /// Reconstruct from `b` (`[view][row][col]`, all views of `a`'s geometry) starting at `x0`
 /// (zeros when `None`); `progress(epoch)` is called after every epoch.
@@ -144,7 +155,7 @@ pub fn sart(
         Ok(a.adjoint_views(ones.view(), blk)?
             .mapv(|v| if v > 1e-6 { 1.0 / v } else { 0.0 }))
     };
-    let cache = blocks.len() * grid.len() * 4 <= V_CACHE_BYTES;
+    let cache = caches_column_sums(blocks.len(), grid.len());
     let v_cached: Vec<Array3<f32>> = if cache {
         blocks
             .iter()

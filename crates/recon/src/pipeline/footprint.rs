@@ -16,7 +16,7 @@
 
 use crate::MethodConfig;
 use crate::classic::ClassicMethod;
-use crate::classic::sart::V_CACHE_BYTES;
+use crate::classic::sart::{block_count, caches_column_sums};
 use crate::gaussian::config::GaussianMethod;
 use prism_domain::memory::{Footprint, bytes};
 use prism_domain::scene::Scene;
@@ -48,19 +48,14 @@ pub const PIXEL_BYTES: u64 = 200;
 pub const VOXEL_BYTES: u64 = 64;
 
 /// The estimated peak memory of running `config` on `scene` (Gaussian methods at their
-/// densification cap).
+/// densification cap; `--set densify.max_gaussians=K` gives the estimate at K Gaussians).
 pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
-    footprint_with(config, scene, None)
-}
-
-/// [`footprint`] with Gaussian methods at `gaussians` Gaussians (a count a run reported) instead
-/// of the cap.
-pub fn footprint_with(config: &MethodConfig, scene: &Scene, gaussians: Option<usize>) -> Footprint {
     let g = &scene.geometry;
     let voxels = g.volume.len();
     let (rows, cols) = (g.detector.rows, g.detector.cols);
     let channels = scene.n_channels();
     let views = scene.n_views();
+    let train = scene.split.train.len();
     let mut f = Footprint::default();
     f.add("the process (code, allocator, threads)", PROCESS_BYTES);
     f.add(
@@ -79,43 +74,39 @@ pub fn footprint_with(config: &MethodConfig, scene: &Scene, gaussians: Option<us
         MethodConfig::Classic(c) => {
             f.add(
                 "one channel's filtered projections or residuals",
-                bytes(views * view_pixels, 8),
+                bytes(train * view_pixels, 8),
             );
             f.add("working volumes", bytes(voxels, VOXEL_BYTES as usize));
             if c.method == ClassicMethod::Sart {
-                let blocks = views.div_ceil(c.block_size.max(1));
-                let cached = bytes(voxels, 4 * blocks);
+                let blocks = block_count(train, c.block_size);
+                let kept = if caches_column_sums(blocks, voxels) {
+                    blocks
+                } else {
+                    1
+                };
                 f.add(
-                    format!("SART's column sums of {blocks} blocks (kept when ≤ 512 MiB)"),
-                    if cached <= V_CACHE_BYTES as u64 {
-                        cached
-                    } else {
-                        bytes(voxels, 4)
-                    },
+                    format!("SART's column sums ({kept} of {blocks} blocks kept)"),
+                    bytes(voxels, 4 * kept),
                 );
             }
         }
         MethodConfig::Gaussian(c) => {
-            let cap = c
+            let k = c
                 .densify
                 .as_ref()
                 .map_or(c.init.n_points, |d| d.max_gaussians.max(c.init.n_points));
-            let (k, which) = match gaussians {
-                Some(k) => (k, "as given"),
-                None => (cap, "at the densification cap"),
-            };
             let columns = match c.method {
                 GaussianMethod::FourDsg => channels,
                 GaussianMethod::R2gs | GaussianMethod::Stage1 => 1,
             };
             f.add(
                 "the FDK initialisation (volume and its filtered projections)",
-                bytes(voxels, 8).saturating_add(bytes(views * view_pixels, 4)),
+                bytes(voxels, 8).saturating_add(bytes(train * view_pixels, 4)),
             );
             f.add(
                 format!(
-                    "{k} Gaussians ({which}; {} at the start), with gradients, Adam moments and \
-                     an iteration's transients",
+                    "{k} Gaussians (at the densification cap; {} at the start), with gradients, \
+                     Adam moments and an iteration's transients",
                     c.init.n_points
                 ),
                 bytes(k, (GAUSSIAN_BYTES + 16 * columns as u64) as usize),

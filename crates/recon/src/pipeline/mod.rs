@@ -10,7 +10,7 @@ mod naf;
 mod run_dir;
 mod setup;
 
-pub use footprint::{footprint, footprint_with};
+pub use footprint::footprint;
 pub use run_dir::{Manifest, RunDir};
 pub use setup::{Outcome, RunOptions};
 
