@@ -480,3 +480,82 @@ fn bench_iteration_reports_allocations_against_the_traffic_bound() {
     ]);
     assert!(!ok && t.contains("--window 10"), "{t}");
 }
+
+/// Ctrl-C (SIGINT) during a Gaussian run: the current step finishes, the run's state is saved
+/// beside the output directory, nothing is published and the exit status is 130; the same
+/// command with `--resume` finishes the run and removes the checkpoint; `--resume` of a classic
+/// method is refused.
+#[test]
+fn sigint_saves_a_checkpoint_and_resume_finishes_the_run() {
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+    let (dir, scene) = simulated("sigint", 24, 24, 32, &[40, 70]);
+    let rc = dir.path().join("r2gs.yaml");
+    std::fs::write(
+        &rc,
+        "method: r2gs\niterations: 400\ninit:\n  n_points: 500\neval_every: 0\n",
+    )
+    .unwrap();
+    let out = dir.path().join("run");
+    let args = ["recon", path(&rc), "-s", path(&scene), "-o", path(&out)];
+    let child = Command::new(env!("CARGO_BIN_EXE_prism"))
+        .args(args)
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    // The handler is installed before the run creates its staging directory.
+    let staging = dir.path().join(".run.partial");
+    let start = Instant::now();
+    while !staging.exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "the run never started"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let pid = child.id().to_string();
+    assert!(
+        Command::new("kill")
+            .args(["-INT", &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
+    let done = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&done.stderr);
+    assert_eq!(done.status.code(), Some(130), "{err}");
+    let ckpt = dir.path().join("run.resume.safetensors");
+    assert!(
+        err.contains("interrupted in `r2gs 40keV` after iteration")
+            && err.contains("run.resume.safetensors")
+            && err.contains("--resume"),
+        "{err}"
+    );
+    assert!(ckpt.is_file() && !out.exists() && !staging.exists());
+
+    // Starting afresh warns that it will replace the checkpoint; resuming finishes the run.
+    let (ok, t) = prism(&[args.as_slice(), &["--resume"]].concat());
+    assert!(ok, "{t}");
+    assert!(t.contains("resuming r2gs 40keV after iteration"), "{t}");
+    let train: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("train.json")).unwrap()).unwrap();
+    assert_eq!(train["stages"][1]["iterations"], 400);
+    assert!(
+        !ckpt.exists(),
+        "the checkpoint is removed with the published run"
+    );
+
+    let fdk = dir.path().join("fdk.yaml");
+    std::fs::write(&fdk, "method: fdk\n").unwrap();
+    let (ok, t) = prism(&[
+        "recon",
+        path(&fdk),
+        "-s",
+        path(&scene),
+        "-o",
+        path(&dir.path().join("f")),
+        "--resume",
+    ]);
+    assert!(!ok && t.contains("--resume") && t.contains("`fdk`"), "{t}");
+}

@@ -44,7 +44,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut config = MethodConfig::load_with(&args.config, &args.set.overrides()?)?;
     let evaluation = args.eval.evaluation()?;
     let bars = Bars::new();
-    let options = args.gaussian.options(&mut config, &bars, &evaluation)?;
+    let options = args
+        .gaussian
+        .options(&mut config, &bars, &evaluation, None)?;
     let base = match &config {
         MethodConfig::Gaussian(c) if c.method == GaussianMethod::FourDsg => c,
         _ => bail!(

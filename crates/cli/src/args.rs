@@ -2,13 +2,14 @@
 //! method runs, and `--set` overrides of a config.
 
 use crate::progress::Bars;
+use anyhow::bail;
 use prism_domain::yaml::Overrides;
 use prism_recon::MethodConfig;
 use prism_recon::evaluate::lpips::Lpips;
 use prism_recon::evaluate::{Evaluation, Protocol, SliceAxes};
 use prism_recon::gaussian::{DeviceChoice, cpu_device};
-use prism_recon::pipeline::{RunDir, RunOptions};
-use std::path::PathBuf;
+use prism_recon::pipeline::{Checkpointing, RunDir, RunOptions};
+use std::path::{Path, PathBuf};
 
 /// `--set key.path=value` overrides of a YAML config.
 #[derive(clap::Args)]
@@ -88,29 +89,80 @@ pub struct GaussianArgs {
     /// that of an uninterrupted run.
     #[arg(long = "from-geometry", value_name = "RUN_DIR|FILE")]
     pub from_geometry: Option<PathBuf>,
+    /// Gaussian methods: continue the run saved in the checkpoint (written when a run is
+    /// interrupted with Ctrl-C / SIGTERM, diverges, or every `checkpoint_every` iterations);
+    /// give the interrupted run's command and settings. The result is that of an uninterrupted
+    /// run.
+    #[arg(long)]
+    pub resume: bool,
+    /// Gaussian methods: the checkpoint file (default: `<out>.resume.safetensors` beside the
+    /// output directory; removed when the run completes).
+    #[arg(long = "checkpoint", value_name = "FILE")]
+    pub checkpoint: Option<PathBuf>,
 }
 
 impl GaussianArgs {
     /// Run options for `config` (its device overridden by `--device`), reporting to `observer`
-    /// and scoring under `evaluation`.
+    /// and scoring under `evaluation`. A Gaussian run published to `out` is checkpointed (and
+    /// stops cleanly on SIGINT / SIGTERM); without `out`, `--resume` and `--checkpoint` are
+    /// refused.
     pub fn options<'a>(
         &'a self,
         config: &mut MethodConfig,
         observer: &'a Bars,
         evaluation: &'a Evaluation,
+        out: Option<&Path>,
     ) -> anyhow::Result<RunOptions<'a>> {
         if let Some(d) = self.device {
             config.set_device(d.choice());
         }
+        let gaussian = matches!(config, MethodConfig::Gaussian(_));
+        let checkpoint = match out {
+            Some(out) if gaussian => {
+                let path = match &self.checkpoint {
+                    Some(p) => p.clone(),
+                    None => default_checkpoint(out)?,
+                };
+                if !self.resume && path.is_file() {
+                    eprintln!(
+                        "warning: `{}` holds the state of an interrupted run; this run starts \
+                         afresh (pass --resume to continue that one) and will replace it",
+                        path.display()
+                    );
+                }
+                Some(Checkpointing {
+                    path,
+                    resume: self.resume,
+                    stop: Some(crate::interrupt::install()?),
+                })
+            }
+            _ if self.resume || self.checkpoint.is_some() => bail!(
+                "--resume and --checkpoint apply to a Gaussian method's `prism recon` run (`{}` \
+                 saves no training state)",
+                config.method().name()
+            ),
+            _ => None,
+        };
         let options = RunOptions {
             device: config.device().device()?,
             from_geometry: self.from_geometry.as_deref(),
             observer,
             evaluation,
+            checkpoint,
         };
         options.check(config)?;
         Ok(options)
     }
+}
+
+/// `<out>.resume.safetensors` beside the output directory `out`.
+fn default_checkpoint(out: &Path) -> anyhow::Result<PathBuf> {
+    let Some(name) = out.file_name() else {
+        bail!("-o {}: name the output directory", out.display());
+    };
+    let mut file = name.to_os_string();
+    file.push(".resume.safetensors");
+    Ok(out.with_file_name(file))
 }
 
 /// Where a run is published.

@@ -12,6 +12,7 @@ mod experiment;
 mod export;
 mod import;
 mod info;
+mod interrupt;
 mod progress;
 mod query;
 mod recon;
@@ -102,7 +103,11 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", describe(&e));
-            ExitCode::FAILURE
+            // 128 + SIGINT, as a shell reports a process ended by Ctrl-C.
+            match e.downcast_ref::<prism_recon::Error>() {
+                Some(prism_recon::Error::Interrupted { .. }) => ExitCode::from(130),
+                _ => ExitCode::FAILURE,
+            }
         }
     }
 }

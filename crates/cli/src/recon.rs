@@ -41,7 +41,9 @@ pub fn run_cmd(args: ReconArgs) -> anyhow::Result<()> {
     }
     let evaluation = args.eval.evaluation()?;
     let bars = Bars::new();
-    let options = args.gaussian.options(&mut config, &bars, &evaluation)?;
+    let options = args
+        .gaussian
+        .options(&mut config, &bars, &evaluation, Some(&args.out.out))?;
     let outcome = run(&config, &scene, args.out.run_dir()?, &options)?;
     bars.finish();
     match outcome.metrics {

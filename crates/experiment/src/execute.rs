@@ -238,6 +238,7 @@ pub fn run_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Res
         from_geometry: None,
         observer: options.observer,
         evaluation: options.evaluation,
+        checkpoint: None,
     };
     match (cell.kind, &config) {
         (CellKind::Run, _) => {

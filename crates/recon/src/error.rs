@@ -25,6 +25,17 @@ pub enum Error {
         iter: usize,
         detail: String,
     },
+    /// The run was asked to stop (SIGINT / SIGTERM) and saved its state.
+    #[error(
+        "interrupted in `{stage}` after iteration {iter}; the run's state is saved in `{}`: \
+         run the same command with --resume to continue",
+        checkpoint.display()
+    )]
+    Interrupted {
+        stage: String,
+        iter: usize,
+        checkpoint: PathBuf,
+    },
 }
 
 impl Error {

@@ -156,6 +156,7 @@ pub fn run_iteration(a: IterationArgs) -> anyhow::Result<serde_json::Value> {
         from_geometry: None,
         observer: &observer,
         evaluation: &evaluation,
+        checkpoint: None,
     };
     let outcome = run(
         &config,

@@ -65,6 +65,10 @@ pub struct GaussianConfig {
     /// Evaluate (voxelize, PSNR/SSIM) every this many iterations; 0: only at the end of a stage
     /// (default 250).
     pub eval_every: usize,
+    /// Save the run's state every this many iterations of a stage, to continue it with
+    /// `prism recon --resume` (`crate::train::resume`); 0 (default): only when the run is
+    /// interrupted or diverges.
+    pub checkpoint_every: usize,
     pub structural: StructuralSource,
     /// `4dsg`: stage 2 (curve model) settings.
     pub stage2: Stage2Config,
@@ -93,6 +97,7 @@ impl Default for GaussianConfig {
             projection: ProjectionConfig::default(),
             densify: Some(DensifyConfig::default()),
             eval_every: 250,
+            checkpoint_every: 0,
             structural: StructuralSource::default(),
             stage2: Stage2Config::default(),
             holdout_channels: Vec::new(),

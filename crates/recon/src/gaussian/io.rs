@@ -104,20 +104,11 @@ pub fn save_model(
     }
     h.validate().map_err(|e| e.in_file(path))?;
     let k = h.len();
-    let data = [
-        ("means", bytes(&h.means), vec![k, 3]),
-        ("scales_raw", bytes(&h.scales), vec![k, 3]),
-        ("rotations", bytes(&h.rotations), vec![k, 4]),
-        ("densities_raw", bytes(&h.densities), vec![k, h.channels]),
-    ];
-    let views: Vec<(&str, TensorView)> = data
-        .iter()
-        .map(|(n, b, s)| {
-            TensorView::new(Dtype::F32, s.clone(), b)
-                .map(|v| (*n, v))
-                .map_err(|e| Error::field(path, n.to_string(), e.to_string()))
-        })
-        .collect::<Result<_>>()?;
+    let mut tensors = Tensors::default();
+    tensors.f32("means", &h.means, [k, 3]);
+    tensors.f32("scales_raw", &h.scales, [k, 3]);
+    tensors.f32("rotations", &h.rotations, [k, 4]);
+    tensors.f32("densities_raw", &h.densities, [k, h.channels]);
     let meta: HashMap<String, String> = [
         ("format", FORMAT.to_string()),
         ("world_scale", world.scale.to_string()),
@@ -132,7 +123,50 @@ pub fn save_model(
     .into_iter()
     .map(|(k, v)| (k.to_string(), v))
     .collect();
-    write_safetensors(path, views, meta)
+    tensors.write(path, meta)
+}
+
+/// A metadata entry: `v` as JSON (errors name `metadata.<key>` of `path`).
+pub(crate) fn json_meta<T: Serialize>(path: &Path, key: &str, v: &T) -> Result<String> {
+    serde_json::to_string(v)
+        .map_err(|e| Error::field(path, format!("metadata.{key}"), e.to_string()))
+}
+
+/// Tensors to write to one safetensors file: name, dtype, shape and little-endian bytes.
+#[derive(Default)]
+pub(crate) struct Tensors(Vec<(String, Dtype, Vec<usize>, Vec<u8>)>);
+
+impl Tensors {
+    /// A float32 tensor of `shape` (row-major `values`).
+    pub fn f32<const D: usize>(
+        &mut self,
+        name: impl Into<String>,
+        values: &[f32],
+        shape: [usize; D],
+    ) {
+        self.0
+            .push((name.into(), Dtype::F32, shape.to_vec(), bytes(values)));
+    }
+
+    /// A byte tensor `[n]` (an opaque record, e.g. a network's).
+    pub fn u8(&mut self, name: impl Into<String>, data: Vec<u8>) {
+        self.0
+            .push((name.into(), Dtype::U8, vec![data.len()], data));
+    }
+
+    /// Write the tensors and the string metadata `meta` to `path` ([`write_safetensors`]).
+    pub fn write(&self, path: &Path, meta: HashMap<String, String>) -> Result<()> {
+        let views: Vec<(&str, TensorView)> = self
+            .0
+            .iter()
+            .map(|(n, dtype, s, b)| {
+                TensorView::new(*dtype, s.clone(), b)
+                    .map(|v| (n.as_str(), v))
+                    .map_err(|e| Error::field(path, n.clone(), e.to_string()))
+            })
+            .collect::<Result<_>>()?;
+        write_safetensors(path, views, meta)
+    }
 }
 
 /// Write a safetensors file whose bytes depend only on its content. safetensors writes the
@@ -230,6 +264,27 @@ impl<'p> TensorFile<'p> {
             .chunks_exact(4)
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect())
+    }
+
+    /// The byte tensor `name` (`[n]`, any `n`).
+    pub fn bytes(&self, name: &str) -> Result<Vec<u8>> {
+        let st = SafeTensors::deserialize(&self.buf).expect("checked when opened");
+        let t = st
+            .tensor(name)
+            .map_err(|e| Error::field(self.path, name, e.to_string()))?;
+        if t.dtype() != Dtype::U8 || t.shape().len() != 1 {
+            return Err(Error::field(
+                self.path,
+                name,
+                format!("expected u8 [n], got {:?} {:?}", t.dtype(), t.shape()),
+            ));
+        }
+        Ok(t.data().to_vec())
+    }
+
+    /// The file being read.
+    pub fn path(&self) -> &Path {
+        self.path
     }
 }
 

@@ -10,6 +10,7 @@ pub mod config;
 pub mod host;
 pub mod io;
 pub mod model;
+pub mod state;
 pub mod volume;
 pub mod world;
 

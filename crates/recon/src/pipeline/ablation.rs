@@ -165,6 +165,7 @@ pub fn ablate(
         &options.device,
         options.from_geometry,
         observer,
+        None,
     )?;
     root.log.stop();
     geometry.publish()?;
@@ -177,11 +178,8 @@ pub fn ablate(
         );
         let mut vdir = dir.child(&v.name)?;
         vdir.write_text(RunDir::CONFIG, &resolved(&v.config)?)?;
-        let mut journal = Journal {
-            log: root.log.fork(&vdir.file(RunDir::LOG))?,
-            stages: root.stages.clone(),
-            observer,
-        };
+        let mut journal = Journal::new(root.log.fork(&vdir.file(RunDir::LOG))?, observer);
+        journal.stages = root.stages.clone();
         let (observed, predicted, s) = spectral(
             &v.config,
             &setup,

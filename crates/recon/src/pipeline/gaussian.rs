@@ -10,11 +10,12 @@ use crate::gaussian::volume::{volumes, volumes_with};
 use crate::gaussian::{GaussianConfig, GaussianMethod, GaussianModel, World};
 use crate::init::initial_model;
 use crate::query::{Holdout, predict_holdout, render_views};
-use crate::stage1::checkpoint::{self, Checkpoint, Fingerprint};
+use crate::stage1::checkpoint::{self, Checkpoint};
 use crate::stage1::{SharedGeometry, train_shared_geometry};
 use crate::stage2::{Spectral, train_spectral};
 use crate::train::data::image;
-use crate::train::{Journal, RunLog, Stage, StageReport, Supervision};
+use crate::train::fingerprint::Fingerprint;
+use crate::train::{Checkpoints, Journal, RunLog, Stage, StageReport, Supervision};
 use crate::{Error, Result};
 use burn::tensor::Device;
 use ndarray::{Array3, Axis};
@@ -85,10 +86,12 @@ pub(super) fn run(
     config.validate()?;
     let setup = Setup::new(scene, config.holdout_indices(scene)?, options.observer)?;
     let device = &options.device;
+    let checkpoints = checkpoints(config, scene, options)?;
     let (mut journal, observed, predicted, trained) = match config.method {
         GaussianMethod::R2gs => {
             let mut journal =
                 Journal::new(RunLog::create(&dir.file(RunDir::LOG))?, options.observer);
+            journal.checkpoints = checkpoints;
             let (observed, models) = r2gs(config, &setup, dir, device, &mut journal)?;
             (journal, observed, None, Trained::PerChannel(models))
         }
@@ -100,6 +103,7 @@ pub(super) fn run(
                 device,
                 options.from_geometry,
                 options.observer,
+                checkpoints,
             )?;
             let (observed, predicted, s) = spectral(
                 config,
@@ -129,9 +133,31 @@ pub(super) struct Outputs {
     pub trained: Trained,
 }
 
+/// The run's checkpoints, when `options` ask for them: saved with the run's fingerprint (the
+/// scene, the settings, and whether stage 1 came from a stage-1 checkpoint), and read back
+/// when resuming.
+fn checkpoints<'a>(
+    config: &GaussianConfig,
+    scene: &Scene,
+    options: &RunOptions<'a>,
+) -> Result<Option<Checkpoints<'a>>> {
+    let Some(c) = &options.checkpoint else {
+        return Ok(None);
+    };
+    let from_geometry = serde_json::Value::Bool(options.from_geometry.is_some());
+    let fingerprint = Fingerprint::new(config, scene, &[], &[("from_geometry", from_geometry)])?;
+    let checkpoints =
+        Checkpoints::new(c.path.clone(), config.checkpoint_every, fingerprint, c.stop);
+    if c.resume {
+        checkpoints.resume_from_file().map(Some)
+    } else {
+        Ok(Some(checkpoints))
+    }
+}
+
 /// Stage 1 in `dir`: trained (its checkpoint saved there), or continued from the checkpoint
 /// `from_geometry` (a file, or a run directory holding one) of the same scene and stage-1
-/// settings; with the journal the run goes on with.
+/// settings; with the journal the run goes on with (keeping `checkpoints`).
 pub(super) fn shared_geometry<'o>(
     config: &GaussianConfig,
     setup: &Setup,
@@ -139,15 +165,18 @@ pub(super) fn shared_geometry<'o>(
     device: &Device,
     from_geometry: Option<&Path>,
     observer: &'o dyn Observer,
+    checkpoints: Option<Checkpoints<'o>>,
 ) -> Result<(Journal<'o>, SharedGeometry)> {
-    let fingerprint = Fingerprint::new(config, &setup.observed)?;
+    let fingerprint = checkpoint::fingerprint(config, &setup.observed)?;
     if let Some(arg) = from_geometry {
         let c = checkpoint::load(&checkpoint::locate(arg), &fingerprint, device)?;
         let mut journal = Journal::new(RunLog::resume(&dir.file(RunDir::LOG), &c.log)?, observer);
+        journal.checkpoints = checkpoints;
         journal.stages.push(c.stage);
         return Ok((journal, c.shared));
     }
     let mut journal = Journal::new(RunLog::create(&dir.file(RunDir::LOG))?, observer);
+    journal.checkpoints = checkpoints;
     let shared = train_shared_geometry(config, &setup.observed, device, &mut journal)?;
     let c = Checkpoint {
         shared,

@@ -35,6 +35,7 @@ fn run_from(
         from_geometry: from,
         observer: &Silent,
         evaluation: &Evaluation::default(),
+        checkpoint: None,
     };
     let config = MethodConfig::Gaussian(Box::new(cfg.clone()));
     let outcome = run(&config, scene, RunDir::create(out, false)?, &options)?;
@@ -45,7 +46,7 @@ fn run_on(cfg: &GaussianConfig, scene: &Scene, out: &Path, device: &Device) -> R
     run_from(cfg, scene, out, device, None)
 }
 
-fn tiny(method: GaussianMethod) -> GaussianConfig {
+pub(super) fn tiny(method: GaussianMethod) -> GaussianConfig {
     let mut c = GaussianConfig::new(method);
     c.iterations = 40;
     c.density_iterations = 20;
@@ -61,7 +62,7 @@ fn tiny(method: GaussianMethod) -> GaussianConfig {
     c
 }
 
-fn losses(dir: &std::path::Path) -> Vec<(String, usize, f64, usize)> {
+pub(super) fn losses(dir: &std::path::Path) -> Vec<(String, usize, f64, usize)> {
     std::fs::read_to_string(dir.join(RunDir::LOG))
         .unwrap()
         .lines()
@@ -380,7 +381,7 @@ fn bad_holdouts_and_single_channel_scenes_are_handled() {
 }
 
 /// The tiny scene with a third channel at 55 keV between 40 and 70 keV, every view complete.
-fn three_channel_scene() -> prism_domain::scene::Scene {
+pub(super) fn three_channel_scene() -> prism_domain::scene::Scene {
     use prism_domain::physics::ChannelSpec;
     use prism_domain::scene::{Channel, SpectralCoordinate, normalise_tau};
     let mut s = scene();

@@ -12,7 +12,7 @@ mod setup;
 
 pub use footprint::footprint;
 pub use run_dir::{Manifest, RunDir};
-pub use setup::{Outcome, RunOptions};
+pub use setup::{Checkpointing, Outcome, RunOptions};
 
 use crate::{MethodConfig, Result};
 use prism_domain::scene::Scene;
@@ -34,13 +34,19 @@ pub fn run(
     if let Some(m) = &metrics {
         dir.write_json(RunDir::METRICS, m)?;
     }
-    Ok(Outcome {
-        dir: dir.publish()?,
-        metrics,
-    })
+    let dir = dir.publish()?;
+    // The checkpoint served its purpose: the run is complete and published.
+    if let Some(c) = &options.checkpoint
+        && c.path.is_file()
+    {
+        std::fs::remove_file(&c.path).map_err(|e| crate::Error::io(&c.path, e))?;
+    }
+    Ok(Outcome { dir, metrics })
 }
 
 #[cfg(test)]
 mod gaussian_tests;
+#[cfg(test)]
+mod resume_tests;
 #[cfg(test)]
 pub(crate) mod tests;

@@ -10,6 +10,7 @@ use prism_domain::projector::check_fov;
 use prism_domain::scene::Scene;
 use std::borrow::Cow;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 
 /// How a run runs: where, from what, and who hears of its progress.
 pub struct RunOptions<'a> {
@@ -21,6 +22,18 @@ pub struct RunOptions<'a> {
     pub observer: &'a dyn Observer,
     /// How the volumes are scored (`metrics.json`, `holdout.json`).
     pub evaluation: &'a Evaluation,
+    /// Gaussian methods: where the run saves its state, and whether it continues from it.
+    pub checkpoint: Option<Checkpointing<'a>>,
+}
+
+/// A Gaussian run's checkpoint (`crate::train::resume`): written to `path` when `stop` is set
+/// (the run then ends with [`Error::Interrupted`]), when a stage diverges and every
+/// `checkpoint_every` iterations; removed when the run is published.
+pub struct Checkpointing<'a> {
+    pub path: PathBuf,
+    /// Continue the run saved in `path`.
+    pub resume: bool,
+    pub stop: Option<&'a AtomicBool>,
 }
 
 impl RunOptions<'_> {
@@ -28,6 +41,17 @@ impl RunOptions<'_> {
     /// create the run directory).
     pub fn check(&self, config: &MethodConfig) -> Result<()> {
         let method = config.method();
+        if self.checkpoint.as_ref().is_some_and(|c| c.resume)
+            && !matches!(config, MethodConfig::Gaussian(_))
+        {
+            return Err(Error::invalid(
+                "--resume",
+                format!(
+                    "`{}` saves no training state: --resume applies to the Gaussian methods",
+                    method.name()
+                ),
+            ));
+        }
         if self.from_geometry.is_some() && !method.has_shared_geometry() {
             return Err(Error::invalid(
                 "--from-geometry",

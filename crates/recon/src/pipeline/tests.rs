@@ -93,6 +93,7 @@ pub(crate) fn run_into(
         from_geometry: None,
         observer: &Silent,
         evaluation: &Evaluation::default(),
+        checkpoint: None,
     };
     run(config, scene, RunDir::create(out, force)?, &options)
 }
@@ -193,6 +194,7 @@ fn lpips_and_the_slice_protocol_reach_metrics_json() {
         from_geometry: None,
         observer: &Silent,
         evaluation: &eval,
+        checkpoint: None,
     };
     let out = dir.path().join("run");
     let m = run(

@@ -146,6 +146,23 @@ impl RunLog {
         Ok(log)
     }
 
+    /// Go back to `saved` (a checkpoint's log): its records replace this log's, in memory and
+    /// in its file, and its clocks run on from `saved`'s.
+    pub fn restore(&mut self, saved: &SavedLog) -> Result<()> {
+        let fresh = match &self.out {
+            Some((path, _)) => RunLog::resume(&path.clone(), saved)?,
+            None => {
+                let mut log = RunLog::in_memory();
+                log.base_wall_s = saved.wall_s;
+                log.eval_s = saved.eval_s;
+                log.lines = saved.lines.clone();
+                log
+            }
+        };
+        *self = fresh;
+        Ok(())
+    }
+
     pub fn wall_s(&self) -> f64 {
         self.stopped
             .unwrap_or_else(|| self.base_wall_s + self.start.elapsed().as_secs_f64())

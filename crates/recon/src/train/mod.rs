@@ -10,8 +10,10 @@
 pub mod curve;
 pub mod data;
 pub mod densify;
+pub mod fingerprint;
 pub mod log;
 pub mod loss;
+pub mod resume;
 pub mod settings;
 pub mod trainer;
 
@@ -19,15 +21,16 @@ pub use curve::CurveFit;
 pub use data::{Supervision, View};
 pub use densify::DensifyCounts;
 pub use log::{LogRecord, LossTerms, RunLog};
+pub use resume::Checkpoints;
 pub use settings::Stage;
-pub use trainer::{DensifyStep, StepPlan, StepStats, Trainer};
+pub use trainer::{DensifyStep, StepPlan, StepStats, Trainer, TrainerState};
 
-use crate::Result;
 use crate::evaluate::Evaluator;
 use crate::gaussian::GaussianModel;
 use crate::gaussian::adam::LogLinear;
 use crate::gaussian::config::{DensifyConfig, LearningRates};
-use prism_domain::observe::Observer;
+use crate::{Error, Result};
+use prism_domain::observe::{Level, Observer};
 use serde::{Deserialize, Serialize};
 
 /// Seconds spent per part of an iteration (one step, or summed over a stage). On the CPU
@@ -69,11 +72,14 @@ pub struct StageReport {
 }
 
 /// A run's training record: its log (`log.jsonl`), the summaries of the stages trained so far
-/// (`train.json`) and where progress goes.
+/// (`train.json`), where progress goes and, when on, its checkpoints ([`resume`]).
 pub struct Journal<'a> {
     pub log: RunLog,
     pub stages: Vec<StageReport>,
     pub observer: &'a dyn Observer,
+    pub checkpoints: Option<Checkpoints<'a>>,
+    /// Stages trained (or replayed from a checkpoint) so far.
+    trained: usize,
 }
 
 impl<'a> Journal<'a> {
@@ -82,22 +88,78 @@ impl<'a> Journal<'a> {
             log,
             stages: Vec::new(),
             observer,
+            checkpoints: None,
+            trained: 0,
         }
     }
 
-    /// [`train`] one stage and keep its summary.
+    /// [`train`] one stage and keep its summary. With checkpoints resuming a run, a stage the
+    /// saved run finished is restored instead (its model, curve model, summary and log), and
+    /// the stage it was in continues from its saved iteration.
     pub fn train(
         &mut self,
         model: &mut GaussianModel,
         sup: &Supervision,
         eval: Option<&Evaluator>,
         stage: &Stage,
-        curve: Option<&mut CurveFit>,
+        mut curve: Option<&mut CurveFit>,
     ) -> Result<()> {
-        let r = train(model, sup, eval, stage, curve, &mut self.log, self.observer)?;
+        let index = self.trained;
+        self.trained += 1;
+        let mut start = None;
+        if let Some(ck) = &mut self.checkpoints {
+            if let Some((report, log)) = ck.replay(index, stage, model, curve.as_deref_mut())? {
+                self.log.restore(&log)?;
+                self.stages.push(report);
+                return Ok(());
+            }
+            if let Some((trainer, progress, log)) =
+                ck.take_current(index, stage, model, curve.as_deref_mut())?
+            {
+                self.log.restore(&log)?;
+                self.observer.note(
+                    Level::Info,
+                    &format!(
+                        "resuming {} {} after iteration {} of {}",
+                        stage.name, stage.channel, progress.iteration, stage.iterations
+                    ),
+                );
+                start = Some((trainer, progress));
+            }
+        }
+        let r = train(
+            self,
+            index,
+            model,
+            sup,
+            eval,
+            stage,
+            curve.as_deref_mut(),
+            start,
+        )?;
+        if let Some(ck) = &mut self.checkpoints {
+            ck.finished(stage, model, curve.as_deref(), &r, self.log.saved())?;
+        }
         self.stages.push(r);
         Ok(())
     }
+}
+
+/// A stage's running sums between two iterations (saved with a checkpoint).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Progress {
+    /// Iterations done.
+    pub iteration: usize,
+    /// The run's training seconds when the stage started.
+    pub start_train_s: f64,
+    pub timing: Timing,
+    pub counts: DensifyCounts,
+    /// Loss terms summed since the last log record, and their count.
+    pub window: LossTerms,
+    pub window_n: usize,
+    pub last: LossTerms,
+    /// The last (PSNR, SSIM).
+    pub last_score: Option<(f64, f64)>,
 }
 
 /// When what happens in a stage.
@@ -139,16 +201,20 @@ fn score(e: &Evaluator, t: &Trainer) -> Result<(f64, f64)> {
     }
 }
 
-/// Train `model` (and, in stage 2, `curve`) on `sup` for one stage, scoring against `eval` when
-/// given; records go to `log`, progress to `observer`.
-pub fn train(
+/// Train `model` (and, in stage 2, `curve`) on `sup` for one stage, the `index`-th of the run,
+/// scoring against `eval` when given, from `start` (a checkpoint's trainer state and running
+/// sums) or from the beginning; records go to the journal's log, progress to its observer,
+/// state to its checkpoints.
+#[allow(clippy::too_many_arguments)]
+fn train(
+    journal: &mut Journal,
+    index: usize,
     model: &mut GaussianModel,
     sup: &Supervision,
     eval: Option<&Evaluator>,
     stage: &Stage,
     curve: Option<&mut CurveFit>,
-    log: &mut RunLog,
-    observer: &dyn Observer,
+    start: Option<(TrainerState, Progress)>,
 ) -> Result<StageReport> {
     let schedule = Schedule {
         iterations: stage.iterations,
@@ -158,40 +224,95 @@ pub fn train(
         eval_every: stage.eval_every,
     };
     let mut trainer = Trainer::new(model, sup, stage, curve)?;
-    let start_train = log.train_s();
-    let mut timing = Timing::default();
-    let mut counts = DensifyCounts::default();
-    let mut window = (LossTerms::default(), 0usize);
-    let mut last = LossTerms::default();
-    let mut last_score: Option<(f64, f64)> = None;
+    let mut p = match start {
+        Some((state, progress)) => {
+            let file = journal
+                .checkpoints
+                .as_ref()
+                .map(|c| c.path().to_path_buf())
+                .unwrap_or_default();
+            trainer.restore(state, &file)?;
+            progress
+        }
+        None => Progress {
+            start_train_s: journal.log.train_s(),
+            ..Progress::default()
+        },
+    };
     let mut status = String::new();
+    let observer = journal.observer;
     observer.phase(
         &format!("{} {}", stage.name, stage.channel),
         stage.iterations as u64,
     );
+    observer.progress(p.iteration as u64, &status);
 
-    for it in 1..=stage.iterations {
-        let step = trainer.step(&schedule.plan(it))?;
-        timing.add(&step.timing);
+    for it in p.iteration + 1..=stage.iterations {
+        let cursor = journal.checkpoints.as_ref().map(|_| trainer.cursor());
+        let step = match trainer.step(&schedule.plan(it)) {
+            Ok(step) => step,
+            Err(Error::Diverged {
+                stage: s,
+                iter,
+                detail,
+            }) => {
+                let saved = match (&mut journal.checkpoints, cursor) {
+                    (Some(ck), Some(cursor)) => {
+                        // The failing step changed only the random stream and the view order.
+                        trainer.rewind(cursor);
+                        if Checkpoints::savable(&trainer) {
+                            ck.save(index, stage, &trainer, &p, journal.log.saved())?;
+                            format!(
+                                "; the state before it (iteration {}) is saved in `{}`",
+                                p.iteration,
+                                ck.path().display()
+                            )
+                        } else {
+                            match ck.written() {
+                                Some((i, at)) => format!(
+                                    "; its parameters are not finite, the last good state                                      (stage {i}, iteration {at}) is in `{}`",
+                                    ck.path().display()
+                                ),
+                                None => "; its parameters are not finite and no earlier                                          state was saved (set `checkpoint_every`)"
+                                    .into(),
+                            }
+                        }
+                    }
+                    _ => String::new(),
+                };
+                return Err(Error::Diverged {
+                    stage: s,
+                    iter,
+                    detail: format!("{detail}{saved}"),
+                });
+            }
+            Err(e) => return Err(e),
+        };
+        p.iteration = it;
+        p.timing.add(&step.timing);
         if let Some(c) = step.densified {
-            counts.cloned += c.cloned;
-            counts.split += c.split;
-            counts.pruned += c.pruned;
+            p.counts.cloned += c.cloned;
+            p.counts.split += c.split;
+            p.counts.pruned += c.pruned;
         }
-        window.0.add(&step.loss);
-        window.1 += 1;
-        last = step.loss;
+        p.window.add(&step.loss);
+        p.window_n += 1;
+        p.last = step.loss;
 
         let due = schedule.evaluates(it);
         if due {
+            let log = &mut journal.log;
             let score = match eval {
                 Some(e) => Some(log.evaluating(|| score(e, &trainer))?),
                 None => None,
             };
             if score.is_some() {
-                last_score = score;
+                p.last_score = score;
             }
-            let (acc, k) = std::mem::take(&mut window);
+            let (acc, k) = (
+                std::mem::take(&mut p.window),
+                std::mem::take(&mut p.window_n),
+            );
             log.write(&LogRecord {
                 stage: stage.name.to_string(),
                 channel: stage.channel.to_string(),
@@ -205,23 +326,45 @@ pub fn train(
             })?;
         }
         if due || it % 10 == 0 {
-            let psnr = last_score
+            let psnr = p
+                .last_score
                 .map(|s| format!(" PSNR {:.2}", s.0))
                 .unwrap_or_default();
-            status = format!("loss {:.4e} K {}{psnr}", last.total, trainer.model().len());
+            status = format!(
+                "loss {:.4e} K {}{psnr}",
+                p.last.total,
+                trainer.model().len()
+            );
         }
         observer.progress(it as u64, &status);
+
+        if let Some(ck) = &mut journal.checkpoints {
+            let stop = ck.stop_requested();
+            if stop || ck.due(it) {
+                // Writing a checkpoint is not training time.
+                let saved = journal.log.saved();
+                let log = &mut journal.log;
+                log.evaluating(|| ck.save(index, stage, &trainer, &p, saved))?;
+            }
+            if stop {
+                return Err(Error::Interrupted {
+                    stage: format!("{} {}", stage.name, stage.channel),
+                    iter: it,
+                    checkpoint: ck.path().to_path_buf(),
+                });
+            }
+        }
     }
     Ok(StageReport {
         stage: stage.name.to_string(),
         channel: stage.channel.to_string(),
         iterations: stage.iterations,
-        train_s: log.train_s() - start_train,
-        timing,
-        densify: counts,
+        train_s: journal.log.train_s() - p.start_train_s,
+        timing: p.timing,
+        densify: p.counts,
         n_gaussians: trainer.model().len(),
-        final_loss: last,
-        psnr: last_score.map(|s| s.0),
-        ssim: last_score.map(|s| s.1),
+        final_loss: p.last,
+        psnr: p.last_score.map(|s| s.0),
+        ssim: p.last_score.map(|s| s.1),
     })
 }

@@ -30,6 +30,26 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::time::Instant;
 
+/// The random stream and view order of a [`Trainer`] ([`Trainer::cursor`]).
+pub struct Cursor {
+    rng: ChaCha8Rng,
+    order: Vec<usize>,
+}
+
+/// A trainer's own state between two steps: the position in its random stream (seeded by the
+/// stage's seed), the views left in the current pass and, while densifying, the view-space
+/// gradient statistics `(sum, count)` per Gaussian. With the model (and curve model) it
+/// continues a stage exactly.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TrainerState {
+    /// Word position in the ChaCha8 stream, in decimal (JSON numbers stop at 2⁵³).
+    pub rng_word_pos: String,
+    pub order: Vec<usize>,
+    /// Stored as tensors, not in the JSON metadata.
+    #[serde(skip)]
+    pub stats: Option<(Vec<f32>, Vec<f32>)>,
+}
+
 /// What one step does beyond the gradient step.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DensifyStep {
@@ -134,6 +154,83 @@ impl<'a> Trainer<'a> {
     /// The curve model, in stage 2.
     pub fn curve(&self) -> Option<&CurveFit> {
         self.curve.as_deref()
+    }
+
+    /// Where the random stream and the view order stand (cheap: taken before every step when
+    /// a run is checkpointed, to save the state before a step that diverges).
+    pub fn cursor(&self) -> Cursor {
+        Cursor {
+            rng: self.rng.clone(),
+            order: self.order.clone(),
+        }
+    }
+
+    /// Put the random stream and the view order back where `cursor` found them.
+    pub fn rewind(&mut self, cursor: Cursor) {
+        self.rng = cursor.rng;
+        self.order = cursor.order;
+    }
+
+    /// The trainer's own state between two steps (see [`TrainerState`]).
+    pub fn state(&self) -> TrainerState {
+        TrainerState {
+            rng_word_pos: self.rng.get_word_pos().to_string(),
+            order: self.order.clone(),
+            stats: self.stats.as_ref().map(|s| {
+                (
+                    crate::gaussian::host_values(&s.sum),
+                    crate::gaussian::host_values(&s.count),
+                )
+            }),
+        }
+    }
+
+    /// Continue from `state` (saved by [`Trainer::state`] from a trainer of the same stage and
+    /// model); `file` names it in errors.
+    pub fn restore(&mut self, state: TrainerState, file: &std::path::Path) -> Result<()> {
+        let bad = |field: &str, why: String| {
+            Error::field(file, format!("metadata.current.trainer.{field}"), why)
+        };
+        let pos: u128 = state
+            .rng_word_pos
+            .parse()
+            .map_err(|e| bad("rng_word_pos", format!("not a position: {e}")))?;
+        let n = self.sup.views.len();
+        let mut seen = vec![false; n];
+        for &v in &state.order {
+            if v >= n || std::mem::replace(&mut seen[v], true) {
+                return Err(bad(
+                    "order",
+                    format!("view {v} is not one of the {n} training views or repeats"),
+                ));
+            }
+        }
+        let k = self.model.len();
+        match (&mut self.stats, state.stats) {
+            (Some(st), Some((sum, count))) if sum.len() == k && count.len() == k => {
+                let device = self.model.device();
+                st.sum = Tensor::from_data(burn::tensor::TensorData::new(sum, [k]), &device);
+                st.count = Tensor::from_data(burn::tensor::TensorData::new(count, [k]), &device);
+            }
+            (None, None) => {}
+            (_, got) => {
+                return Err(bad(
+                    "stats",
+                    format!(
+                        "densification statistics for {} Gaussians do not fit this stage ({})",
+                        got.map_or(0, |g| g.0.len()),
+                        if self.stats.is_some() {
+                            format!("densifying, {k} Gaussians")
+                        } else {
+                            "not densifying".into()
+                        }
+                    ),
+                ));
+            }
+        }
+        self.rng.set_word_pos(pos);
+        self.order = state.order;
+        Ok(())
     }
 
     /// One iteration (see the module docs).

@@ -1,0 +1,221 @@
+//! Interrupted Gaussian runs, resumed from their checkpoint, end exactly as uninterrupted ones
+//! (`crate::train::resume`); divergence saves the last good state; mismatched resumes are
+//! refused.
+
+use super::gaussian_tests::{losses, three_channel_scene, tiny};
+use super::tests::scene;
+use super::{Checkpointing, RunDir, RunOptions, run};
+use crate::gaussian::{GaussianConfig, GaussianMethod, cpu_device};
+use crate::{Error, MethodConfig, Result};
+use prism_domain::observe::Observer;
+use prism_domain::scene::Scene;
+use std::path::Path;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Sets its flag (the run's stop request) when phase `phase` reaches step `at`.
+struct StopAt<'a> {
+    phase: &'a str,
+    at: u64,
+    current: Mutex<String>,
+    flag: &'a AtomicBool,
+}
+
+impl Observer for StopAt<'_> {
+    fn phase(&self, name: &str, _total: u64) {
+        *self.current.lock().unwrap() = name.to_string();
+    }
+    fn progress(&self, done: u64, _status: &str) {
+        if *self.current.lock().unwrap() == self.phase && done == self.at {
+            self.flag.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Run `cfg` into `out`, checkpointing to `ckpt` (resuming from it when `resume`), stopped at
+/// step `at` of phase `phase` (none when `phase` is empty).
+fn run_stopped(
+    cfg: &GaussianConfig,
+    scene: &Scene,
+    out: &Path,
+    ckpt: &Path,
+    resume: bool,
+    (phase, at): (&str, u64),
+) -> Result<()> {
+    let flag = AtomicBool::new(false);
+    let observer = StopAt {
+        phase,
+        at,
+        current: Mutex::default(),
+        flag: &flag,
+    };
+    let options = RunOptions {
+        device: cpu_device(),
+        from_geometry: None,
+        observer: &observer,
+        evaluation: &crate::evaluate::Evaluation::default(),
+        checkpoint: Some(Checkpointing {
+            path: ckpt.to_path_buf(),
+            resume,
+            stop: Some(&flag),
+        }),
+    };
+    let config = MethodConfig::Gaussian(Box::new(cfg.clone()));
+    run(&config, scene, RunDir::create(out, true)?, &options).map(|_| ())
+}
+
+/// The files of a finished run that must be identical: models, volumes and losses.
+fn assert_same_results(a: &Path, b: &Path) {
+    assert_eq!(losses(a), losses(b), "losses");
+    let mut compared = 0;
+    for entry in std::fs::read_dir(a).unwrap() {
+        let name = entry.unwrap().file_name().into_string().unwrap();
+        if name.ends_with(".npy") || name.starts_with("gaussians") {
+            assert!(
+                std::fs::read(a.join(&name)).unwrap() == std::fs::read(b.join(&name)).unwrap(),
+                "{name} differs"
+            );
+            compared += 1;
+        }
+    }
+    assert!(compared >= 3, "{compared} files compared");
+    let summary = |d: &Path| -> Vec<serde_json::Value> {
+        let t: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join(RunDir::TRAIN)).unwrap()).unwrap();
+        t["stages"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| {
+                let mut s = s.clone();
+                let o = s.as_object_mut().unwrap();
+                o.remove("train_s");
+                o.remove("timing");
+                s
+            })
+            .collect()
+    };
+    assert_eq!(summary(a), summary(b), "stage summaries (times aside)");
+}
+
+fn interrupted(e: Error, ckpt: &Path, stage: &str, iter: usize) {
+    match e {
+        Error::Interrupted {
+            stage: s,
+            iter: i,
+            checkpoint,
+        } => {
+            assert_eq!((s.as_str(), i), (stage, iter));
+            assert_eq!(checkpoint, ckpt);
+            assert!(ckpt.is_file());
+        }
+        other => panic!("expected an interruption, got {other}"),
+    }
+}
+
+/// R²-Gaussian stopped in its second channel while densifying (the first channel finished),
+/// resumed: the same models, volumes, log and summaries as the uninterrupted run; the
+/// checkpoint is gone once the run is published.
+#[test]
+fn an_interrupted_r2gs_run_resumes_exactly() {
+    let scene = scene();
+    let cfg = tiny(GaussianMethod::R2gs);
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let ckpt = tmp.path().join("b.resume.safetensors");
+    run_stopped(&cfg, &scene, &a, &tmp.path().join("a.ckpt"), false, ("", 0)).unwrap();
+    assert!(!tmp.path().join("a.ckpt").exists(), "no checkpoint left");
+
+    let phase = format!("r2gs {}", scene.channels[1].label);
+    let e = run_stopped(&cfg, &scene, &b, &ckpt, false, (&phase, 15)).unwrap_err();
+    interrupted(e, &ckpt, &phase, 15);
+    assert!(!b.exists(), "an interrupted run publishes nothing");
+    run_stopped(&cfg, &scene, &b, &ckpt, true, ("", 0)).unwrap();
+    assert_same_results(&a, &b);
+    assert!(
+        !ckpt.exists(),
+        "the checkpoint is removed with the published run"
+    );
+}
+
+/// 4D-SG stopped twice, in stage 1 while densifying and in the spectral stage (GSC-Net and its
+/// Adam restored from Burn's records), resumed each time: the uninterrupted run's results.
+#[test]
+fn a_4dsg_run_interrupted_in_both_stages_resumes_exactly() {
+    let scene = three_channel_scene();
+    let mut cfg = tiny(GaussianMethod::FourDsg);
+    cfg.iterations = 30;
+    cfg.stage2.iterations = 12;
+    cfg.stage2.curve_model.width = 8;
+    cfg.stage2.curve_model.depth = 1;
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let ckpt = tmp.path().join("b.ckpt");
+    run_stopped(&cfg, &scene, &a, &tmp.path().join("a.ckpt"), false, ("", 0)).unwrap();
+
+    let e = run_stopped(&cfg, &scene, &b, &ckpt, false, ("geometry structural", 17)).unwrap_err();
+    interrupted(e, &ckpt, "geometry structural", 17);
+    let e = run_stopped(&cfg, &scene, &b, &ckpt, true, ("gscnet all", 5)).unwrap_err();
+    interrupted(e, &ckpt, "gscnet all", 5);
+    run_stopped(&cfg, &scene, &b, &ckpt, true, ("", 0)).unwrap();
+    assert_same_results(&a, &b);
+}
+
+/// Periodic checkpoints; a resume with other settings, another scene or no file is refused
+/// before anything is written, naming what differs.
+#[test]
+fn checkpoints_are_periodic_and_refused_for_another_run() {
+    let scene = scene();
+    let mut cfg = tiny(GaussianMethod::R2gs);
+    cfg.checkpoint_every = 10;
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let ckpt = tmp.path().join("run.ckpt");
+    let e = run_stopped(&cfg, &scene, &out, &ckpt, false, ("r2gs 40keV", 35));
+    // Stopped at 35: the file holds iteration 35 (the stop), written over iteration 30's.
+    interrupted(e.unwrap_err(), &ckpt, "r2gs 40keV", 35);
+
+    let mut other = cfg.clone();
+    other.seed = 3;
+    let e = run_stopped(&other, &scene, &out, &ckpt, true, ("", 0))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("run.ckpt") && e.contains("`seed`"), "{e}");
+    // `checkpoint_every` may change between the runs.
+    let mut every = cfg.clone();
+    every.checkpoint_every = 0;
+    let mut other_scene = scene.clone();
+    other_scene.projections[[0, 0, 20, 20]] += 0.01;
+    let e = run_stopped(&every, &other_scene, &out, &ckpt, true, ("", 0))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("scene"), "{e}");
+    assert!(!out.exists());
+    let e = run_stopped(&cfg, &scene, &out, &tmp.path().join("none"), true, ("", 0))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("none") && e.contains("no checkpoint"), "{e}");
+    run_stopped(&every, &scene, &out, &ckpt, true, ("", 0)).unwrap();
+    assert!(out.join(RunDir::TRAIN).is_file());
+}
+
+/// A stage whose loss overflows saves the state before the failing step and says where.
+#[test]
+fn a_diverging_run_saves_its_last_good_state() {
+    let scene = scene();
+    let mut cfg = tiny(GaussianMethod::R2gs);
+    cfg.densify = None;
+    cfg.lr.density.init = 1e38;
+    cfg.lr.density.end = 1e38;
+    let tmp = tempfile::tempdir().unwrap();
+    let ckpt = tmp.path().join("run.ckpt");
+    let e = run_stopped(&cfg, &scene, &tmp.path().join("run"), &ckpt, false, ("", 0)).unwrap_err();
+    let Error::Diverged { iter, detail, .. } = &e else {
+        panic!("expected a divergence, got {e}");
+    };
+    assert!(
+        detail.contains(&format!("iteration {}", iter - 1)) && detail.contains("run.ckpt"),
+        "{e}"
+    );
+    assert!(ckpt.is_file());
+}
