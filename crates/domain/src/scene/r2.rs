@@ -113,8 +113,10 @@ impl Scene {
             .map_err(|e| e.in_file(&meta_path))?;
         let (rows, cols) = (geometry.detector.rows, geometry.detector.cols);
 
-        let mut projections = Array4::<f32>::zeros((1, views.len(), rows, cols));
-        for (k, (field, v)) in views.iter().enumerate() {
+        // Each image is checked against `scanner.nDetector` before it is used, and the first
+        // before the stack is allocated: the stack's size then rests on a file that holds it,
+        // not on the metadata alone.
+        let image = |(field, v): &(String, &R2View)| -> Result<ndarray::Array2<f32>> {
             let path = inside(dir, &v.file_path, &meta_path, &format!("{field}.file_path"))?;
             let img = read_npy_f32(&path, field)?;
             if img.shape() != [rows, cols] {
@@ -129,12 +131,18 @@ impl Scene {
             }
             check_finite(field, img.view(), |_| "projection".into())
                 .map_err(|e| e.in_file(&path))?;
-            let img = img
-                .into_dimensionality::<ndarray::Ix2>()
-                .map_err(|e| Error::field(&path, field.as_str(), e.to_string()))?;
+            img.into_dimensionality::<ndarray::Ix2>()
+                .map_err(|e| Error::field(&path, field.as_str(), e.to_string()))
+        };
+        let first = image(&views[0])?;
+        let mut projections = Array4::<f32>::zeros((1, views.len(), rows, cols));
+        projections
+            .slice_mut(ndarray::s![0, 0, .., ..])
+            .assign(&first);
+        for (k, view) in views.iter().enumerate().skip(1) {
             projections
                 .slice_mut(ndarray::s![0, k, .., ..])
-                .assign(&img);
+                .assign(&image(view)?);
         }
 
         let vol_name: Option<String> = take(&meta, "vol", &meta_path, Some(None))?;

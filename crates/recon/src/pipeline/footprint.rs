@@ -123,6 +123,18 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                     ((channels - 1) as f64 * RETAINED_PER_CHANNEL * working) as u64,
                 );
             }
+            // The checkpoints keep every finished geometry stage's parameters and Adam moments
+            // on the host: 3 × 4 bytes for each of a Gaussian's 11 parameters.
+            let finished = match c.method {
+                GaussianMethod::R2gs => channels - 1,
+                GaussianMethod::Stage1 | GaussianMethod::FourDsg => 1,
+            };
+            if finished > 0 {
+                f.add(
+                    format!("{finished} finished stages' state kept for checkpoints"),
+                    bytes(k, 12 * 11 * finished),
+                );
+            }
             f.add(
                 format!("an iteration's images ({columns} × {rows}×{cols})"),
                 bytes(view_pixels, (PIXEL_BYTES * columns as u64) as usize),
