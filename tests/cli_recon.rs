@@ -514,10 +514,11 @@ fn sigint_saves_a_checkpoint_and_resume_finishes_the_run() {
         );
         std::thread::sleep(Duration::from_millis(5));
     }
-    let pid = child.id().to_string();
+    // The shell's built-in `kill` (no procps needed).
+    let kill = format!("kill -INT {}", child.id());
     assert!(
-        Command::new("kill")
-            .args(["-INT", &pid])
+        Command::new("sh")
+            .args(["-c", &kill])
             .status()
             .unwrap()
             .success()
