@@ -245,7 +245,10 @@ fn train(
         &format!("{} {}", stage.name, stage.channel),
         stage.iterations as u64,
     );
-    observer.progress(p.iteration as u64, &status);
+    if p.iteration > 0 {
+        // A resumed stage: the bar starts where the saved run stopped.
+        observer.progress(p.iteration as u64, &status);
+    }
 
     for it in p.iteration + 1..=stage.iterations {
         let cursor = journal.checkpoints.as_ref().map(|_| trainer.cursor());
