@@ -149,17 +149,15 @@ impl RunLog {
     /// Go back to `saved` (a checkpoint's log): its records replace this log's, in memory and
     /// in its file, and its clocks run on from `saved`'s.
     pub fn restore(&mut self, saved: &SavedLog) -> Result<()> {
-        let fresh = match &self.out {
+        *self = match &self.out {
             Some((path, _)) => RunLog::resume(&path.clone(), saved)?,
-            None => {
-                let mut log = RunLog::in_memory();
-                log.base_wall_s = saved.wall_s;
-                log.eval_s = saved.eval_s;
-                log.lines = saved.lines.clone();
-                log
-            }
+            None => RunLog {
+                base_wall_s: saved.wall_s,
+                eval_s: saved.eval_s,
+                lines: saved.lines.clone(),
+                ..RunLog::in_memory()
+            },
         };
-        *self = fresh;
         Ok(())
     }
 

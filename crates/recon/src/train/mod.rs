@@ -260,26 +260,9 @@ fn train(
                 detail,
             }) => {
                 let saved = match (&mut journal.checkpoints, cursor) {
-                    (Some(ck), Some(cursor)) => {
-                        // The failing step changed only the random stream and the view order.
-                        trainer.rewind(cursor);
-                        if Checkpoints::savable(&trainer) {
-                            ck.save(index, stage, &trainer, &p, journal.log.saved())?;
-                            format!(
-                                "; the state before it (iteration {}) is saved in `{}`",
-                                p.iteration,
-                                ck.path().display()
-                            )
-                        } else {
-                            match ck.written() {
-                                Some((i, at)) => format!(
-                                    "; its parameters are not finite, the last good state                                      (stage {i}, iteration {at}) is in `{}`",
-                                    ck.path().display()
-                                ),
-                                None => "; its parameters are not finite and no earlier                                          state was saved (set `checkpoint_every`)"
-                                    .into(),
-                            }
-                        }
+                    (Some(ck), Some(before)) => {
+                        let log = journal.log.saved();
+                        ck.save_last_good(index, stage, &mut trainer, before, &p, log)?
                     }
                     _ => String::new(),
                 };

@@ -29,7 +29,7 @@
 
 use super::fingerprint::Fingerprint;
 use super::log::SavedLog;
-use super::trainer::{Trainer, TrainerState};
+use super::trainer::{Cursor, Trainer, TrainerState};
 use super::{CurveFit, Progress, Stage, StageReport};
 use crate::gaussian::GaussianModel;
 use crate::gaussian::io::{TensorFile, Tensors, json_meta};
@@ -289,8 +289,9 @@ impl<'a> Checkpoints<'a> {
         };
         self.check_stage(index, &f.at, stage)?;
         self.restore(&f.at, model, curve, &format!("done{index}."))?;
-        self.done.push(f.clone());
-        Ok(Some((f.report, f.at.log)))
+        let out = (f.report.clone(), f.at.log.clone());
+        self.done.push(f);
+        Ok(Some(out))
     }
 
     /// The `index`-th stage's state in progress, when the resume file holds it: restored into
@@ -411,35 +412,67 @@ impl<'a> Checkpoints<'a> {
         progress: &Progress,
         log: SavedLog,
     ) -> Result<()> {
-        let model = ModelState::of(trainer.model());
-        let current = Current {
+        let current = Self::current(index, stage, trainer, progress, log)?;
+        self.write(&current)
+    }
+
+    /// After the `index`-th stage diverged in the step that followed `progress`: rewind the
+    /// trainer to before that step (the step changed only its random stream and view order)
+    /// and save that state when its parameters are finite. Says where the last good state is,
+    /// for the error.
+    pub(super) fn save_last_good(
+        &mut self,
+        index: usize,
+        stage: &Stage,
+        trainer: &mut Trainer,
+        before: Cursor,
+        progress: &Progress,
+        log: SavedLog,
+    ) -> Result<String> {
+        trainer.rewind(before);
+        let current = Self::current(index, stage, trainer, progress, log)?;
+        let path = self.path.display().to_string();
+        if current.at.model.is_finite() {
+            self.write(&current)?;
+            return Ok(format!(
+                "; the state before it (iteration {}) is saved in `{path}`",
+                progress.iteration
+            ));
+        }
+        Ok(match self.written {
+            Some((i, at)) => format!(
+                "; its parameters are not finite, the last good state (stage {i}, iteration \
+                 {at}) is in `{path}`"
+            ),
+            None => "; its parameters are not finite and no earlier state was saved (set \
+                     `checkpoint_every`)"
+                .into(),
+        })
+    }
+
+    /// The state of the `index`-th stage in progress, copied to the host.
+    fn current(
+        index: usize,
+        stage: &Stage,
+        trainer: &Trainer,
+        progress: &Progress,
+        log: SavedLog,
+    ) -> Result<Current> {
+        Ok(Current {
             index,
             at: Snapshot {
                 stage: stage.name.to_string(),
                 channel: stage.channel.to_string(),
-                model,
+                model: ModelState::of(trainer.model()),
                 curve: trainer.curve().map(CurveState::of).transpose()?,
                 log,
             },
             trainer: trainer.state(),
             progress: progress.clone(),
-        };
-        self.write(&current)?;
-        self.written = Some((index, progress.iteration));
-        Ok(())
+        })
     }
 
-    /// Whether `trainer`'s parameters are all finite (a state worth saving after a divergence).
-    pub(super) fn savable(trainer: &Trainer) -> bool {
-        ModelState::of(trainer.model()).is_finite()
-    }
-
-    /// The last file written: (stage index, iteration).
-    pub fn written(&self) -> Option<(usize, usize)> {
-        self.written
-    }
-
-    fn write(&self, current: &Current) -> Result<()> {
+    fn write(&mut self, current: &Current) -> Result<()> {
         let path = &self.path;
         let mut tensors = Tensors::default();
         let mut done_meta = Vec::new();
@@ -477,7 +510,9 @@ impl<'a> Checkpoints<'a> {
         // last complete checkpoint.
         let tmp = path.with_extension("partial");
         tensors.write(&tmp, meta)?;
-        std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+        std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))?;
+        self.written = Some((current.index, current.progress.iteration));
+        Ok(())
     }
 }
 

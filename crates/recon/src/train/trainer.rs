@@ -209,8 +209,8 @@ impl<'a> Trainer<'a> {
         match (&mut self.stats, state.stats) {
             (Some(st), Some((sum, count))) if sum.len() == k && count.len() == k => {
                 let device = self.model.device();
-                st.sum = Tensor::from_data(burn::tensor::TensorData::new(sum, [k]), &device);
-                st.count = Tensor::from_data(burn::tensor::TensorData::new(count, [k]), &device);
+                st.sum = crate::gaussian::upload(sum, 1, &device).reshape([k]);
+                st.count = crate::gaussian::upload(count, 1, &device).reshape([k]);
             }
             (None, None) => {}
             (_, got) => {
