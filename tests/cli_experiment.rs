@@ -74,6 +74,8 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
         t.contains("runs/p3-v3-shipped-s0/4dsg.freeze  to run"),
         "{t}"
     );
+    // Every scene cell's simulation is estimated before it runs.
+    assert_eq!(t.matches("simulating needs ~").count(), 8, "{t}");
     // Two cells at a time, the threads split between them; every cell records it.
     let (ok, t) = prism(&["experiment", s, "-o", o, "--jobs", "2"]);
     assert!(ok, "{t}");

@@ -109,6 +109,28 @@ fn counts_with_flat_and_dark_fields_import_to_the_scenes_line_integrals() {
     )
     .unwrap();
     let out = dir.path().join("imported");
+    // The estimate, itemised; nothing is written.
+    let (ok, t) = prism(&["import", path(&import), "-o", path(&out), "--dry-run"]);
+    assert!(
+        ok && t.contains(&format!(
+            "projections of the full scan (3 channels × {VIEWS} views × {rows}×{cols})"
+        )) && t.contains("full-view FDK")
+            && t.contains("estimated peak"),
+        "{t}"
+    );
+    assert!(!out.exists(), "a dry run writes nothing");
+    // A 4096³ reference grid cannot fit: refused before any image is read, unless allowed.
+    let huge = dir.path().join("huge.yaml");
+    let text = std::fs::read_to_string(&import).unwrap();
+    let big_volume =
+        serde_json::to_string(&prism_domain::geometry::VolumeGrid::cube(4096, 0.01)).unwrap();
+    std::fs::write(&huge, text.replace(&volume, &big_volume)).unwrap();
+    let (ok, t) = prism(&["import", path(&huge), "-o", path(&out)]);
+    assert!(
+        !ok && t.contains("--allow-memory") && t.contains("huge.yaml"),
+        "{t}"
+    );
+    assert!(!out.exists());
     let (ok, t) = prism(&["import", path(&import), "-o", path(&out)]);
     assert!(ok, "{t}");
     assert!(t.contains("50 training + 20 test views of 360"), "{t}");

@@ -89,13 +89,13 @@ pub struct GaussianArgs {
     /// that of an uninterrupted run.
     #[arg(long = "from-geometry", value_name = "RUN_DIR|FILE")]
     pub from_geometry: Option<PathBuf>,
-    /// Gaussian methods: continue the run saved in the checkpoint (written when a run is
+    /// Gaussian methods and NAF: continue the run saved in the checkpoint (written when a run is
     /// interrupted with Ctrl-C / SIGTERM, diverges, or every `checkpoint_every` iterations);
     /// give the interrupted run's command and settings. The result is that of an uninterrupted
     /// run.
     #[arg(long)]
     pub resume: bool,
-    /// Gaussian methods: the checkpoint file (default: `<out>.resume.safetensors` beside the
+    /// Gaussian methods and NAF: the checkpoint file (default: `<out>.resume.safetensors` beside the
     /// output directory; removed when the run completes).
     #[arg(long = "checkpoint", value_name = "FILE")]
     pub checkpoint: Option<PathBuf>,
@@ -103,7 +103,7 @@ pub struct GaussianArgs {
 
 impl GaussianArgs {
     /// Run options for `config` (its device overridden by `--device`), reporting to `observer`
-    /// and scoring under `evaluation`. A Gaussian run published to `out` is checkpointed (and
+    /// and scoring under `evaluation`. A Gaussian or NAF run published to `out` is checkpointed (and
     /// stops cleanly on SIGINT / SIGTERM); without `out`, `--resume` and `--checkpoint` are
     /// refused.
     pub fn options<'a>(
@@ -116,9 +116,8 @@ impl GaussianArgs {
         if let Some(d) = self.device {
             config.set_device(d.choice());
         }
-        let gaussian = matches!(config, MethodConfig::Gaussian(_));
         let checkpoint = match out {
-            Some(out) if gaussian => {
+            Some(out) if config.method().trains() => {
                 let path = match &self.checkpoint {
                     Some(p) => p.clone(),
                     None => default_checkpoint(out)?,
@@ -137,8 +136,8 @@ impl GaussianArgs {
                 })
             }
             _ if self.resume || self.checkpoint.is_some() => bail!(
-                "--resume and --checkpoint apply to a Gaussian method's `prism recon` run (`{}` \
-                 saves no training state)",
+                "--resume and --checkpoint apply to a Gaussian method's or NAF's `prism recon` \
+                 run (`{}` saves no training state)",
                 config.method().name()
             ),
             _ => None,

@@ -7,6 +7,7 @@ use crate::args::{DeviceArg, SetArgs};
 use crate::progress::Bars;
 use anyhow::{Context, bail};
 use prism_domain::observe::{Level, Observer};
+use prism_domain::simulate::SimulateConfig;
 use prism_experiment::execute::{
     CellState, ExecOptions, Selection, record_failures, run_plan, run_state, scene_state,
 };
@@ -61,9 +62,14 @@ struct RunArgs {
     /// (without it such cells are refused).
     #[arg(long)]
     force: bool,
-    /// List the cells, their directories and whether they are done; run nothing.
+    /// List the cells, their directories, whether they are done and each scene cell's
+    /// estimated peak memory; run nothing.
     #[arg(long)]
     dry_run: bool,
+    /// Run a cell even when its estimated peak memory exceeds the memory available (every
+    /// scene and run cell is checked before it starts).
+    #[arg(long)]
+    allow_memory: bool,
     /// Run cells at a time, the threads split evenly between them (default: the suite's
     /// `jobs`, else 1). Every cell records how it ran; the report says so.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
@@ -190,6 +196,7 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
         evaluation_spec: &loaded.suite.evaluation,
         force: a.force,
         jobs: a.jobs.map_or(loaded.suite.jobs, |n| n as usize),
+        allow_memory: a.allow_memory,
     };
     let selection = Selection::of(&plan, a.only.as_deref(), &a.study)?;
     if a.dry_run {
@@ -206,6 +213,9 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
         }
         if a.force {
             pass_on.push("--force".into());
+        }
+        if a.allow_memory {
+            pass_on.push("--allow-memory".into());
         }
         let s = &a.slurm;
         let sub = submit(
@@ -304,13 +314,18 @@ fn dry_run(
     };
     println!("{} scene cells:", plan.scenes.len());
     for (i, c) in plan.scenes.iter().enumerate() {
+        let peak = SimulateConfig::load_with(&c.config, &c.overrides)
+            .and_then(|cfg| cfg.footprint())
+            .map_err(|e| e.in_file(&c.config))?
+            .total();
         println!(
-            "  [{i}] scenes/{}  ({}³, {} views, {} channels)  {}",
+            "  [{i}] scenes/{}  ({}³, {} views, {} channels)  {}\n      simulating needs ~{}",
             c.key,
             c.n,
             c.views,
             c.channels,
-            mark(selection.has_scene(i), state(scene_state(plan, out, i)?))
+            mark(selection.has_scene(i), state(scene_state(plan, out, i)?)),
+            prism_domain::memory::human(peak),
         );
     }
     println!("{} run cells:", plan.runs.len());

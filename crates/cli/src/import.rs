@@ -5,7 +5,7 @@
 
 use crate::progress::Bars;
 use anyhow::Context;
-use prism_domain::import::{ImportConfig, ReferenceKind, assemble};
+use prism_domain::import::{ImportConfig, ReferenceKind, assemble, footprint};
 use prism_domain::observe::{Level, Observer};
 use prism_recon::classic::{ClassicConfig, ClassicMethod, reconstruct_channel};
 use std::path::PathBuf;
@@ -17,6 +17,8 @@ pub struct Args {
     /// Scene directory to write.
     #[arg(short = 'o', long = "out")]
     out: PathBuf,
+    #[command(flatten)]
+    memory: crate::args::MemoryArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -25,6 +27,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let config: ImportConfig =
         prism_domain::yaml::parse_with(&text, &args.config, &Default::default())?;
     let base = args.config.parent().unwrap_or(std::path::Path::new("."));
+    let footprint = footprint(&config, base).map_err(|e| e.in_file(&args.config))?;
+    let what = format!("importing {}", args.config.display());
+    if !args.memory.proceed(&args.config, &what, &footprint)? {
+        return Ok(());
+    }
     let bars = Bars::new();
     bars.phase("reading and converting the images", 0);
     let full = assemble(&config, base, &text).map_err(|e| e.in_file(&args.config))?;

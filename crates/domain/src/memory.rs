@@ -5,6 +5,10 @@
 use crate::{Error, Result};
 use serde::Serialize;
 
+/// The process before any data: code, the allocator's arenas, thread stacks (measured: `prism
+/// info` holds 22 MB with a 3.6 MB scene). Every command's estimate starts with it.
+pub const PROCESS_BYTES: u64 = 20_000_000;
+
 /// The most elements one array may hold (2⁴⁰: 4 TiB of f32). Larger counts are refused as
 /// input errors before any arithmetic on them can overflow.
 pub const MAX_ELEMENTS: usize = 1 << 40;
@@ -38,6 +42,13 @@ pub struct Footprint {
 }
 
 impl Footprint {
+    /// An estimate holding only the process itself ([`PROCESS_BYTES`]).
+    pub fn process() -> Self {
+        let mut f = Footprint::default();
+        f.add("the process (code, allocator, threads)", PROCESS_BYTES);
+        f
+    }
+
     /// Add an item.
     pub fn add(&mut self, what: impl Into<String>, bytes: u64) -> &mut Self {
         self.items.push((what.into(), bytes));

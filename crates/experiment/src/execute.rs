@@ -14,12 +14,12 @@ use crate::suite::EvaluationSpec;
 use crate::{Error, Result};
 use prism_domain::observe::{Level, Observer};
 use prism_domain::scene::Scene;
-use prism_domain::simulate::simulate_file;
+use prism_domain::simulate::{SimulateConfig, simulate};
 use prism_recon::MethodConfig;
 use prism_recon::evaluate::Evaluation;
 use prism_recon::gaussian::{DeviceChoice, GaussianMethod};
 use prism_recon::pipeline::ablation::ablate;
-use prism_recon::pipeline::{RunDir, RunOptions, run};
+use prism_recon::pipeline::{RunDir, RunOptions, footprint, run};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
@@ -37,6 +37,9 @@ pub struct ExecOptions<'a> {
     pub force: bool,
     /// Run cells at a time (≥ 1); the threads are split evenly between them.
     pub jobs: usize,
+    /// Run a cell even when its estimated peak memory exceeds the memory available (each scene
+    /// and run cell is checked before it starts, against what is available then).
+    pub allow_memory: bool,
 }
 
 impl ExecOptions<'_> {
@@ -198,7 +201,13 @@ pub fn simulate_scene(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) 
         Level::Info,
         &format!("scene {}: simulating {}", cell.key, cell.config.display()),
     );
-    let scene = simulate_file(&cell.config, &cell.overrides, options.observer)?;
+    let config = SimulateConfig::load_with(&cell.config, &cell.overrides)?;
+    config
+        .footprint()
+        .and_then(|f| f.check(&format!("scene cell `{}`", cell.key), options.allow_memory))
+        .map_err(|e| e.in_file(&cell.config))?;
+    let mut scene = simulate(&config, Some(&cell.config), options.observer)?;
+    scene.provenance.overrides = cell.overrides.texts();
     let dir = plan.scene_dir(out, i);
     create_parent(&dir)?;
     scene.save(&dir)?;
@@ -228,6 +237,7 @@ pub fn run_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Res
     if let Some(d) = options.device {
         config.set_device(d);
     }
+    footprint(&config, &scene).check(&format!("run cell `{}`", cell.key), options.allow_memory)?;
     let record = cell_record(plan, i, options)?;
     let target = plan.run_dir(out, i);
     create_parent(&target)?;

@@ -59,6 +59,12 @@ impl Method {
         }
     }
 
+    /// Whether a run is trained iteratively and can be interrupted and resumed
+    /// (`crate::train::resume`, `crate::naf::resume`): the Gaussian methods and NAF.
+    pub fn trains(self) -> bool {
+        !matches!(self.family(), Family::Classic(_))
+    }
+
     /// Whether the method trains 4D-SG's shared geometry (and can continue from its checkpoint).
     pub fn has_shared_geometry(self) -> bool {
         matches!(self, Method::FourDsgStage1 | Method::FourDsg)

@@ -19,6 +19,7 @@ mod tests;
 
 pub use config::{ImportConfig, ReferenceKind};
 
+use crate::memory::{self, Footprint};
 use crate::scene::{Channel, Provenance, Scene, Split, normalise_tau};
 use crate::{Error, Result};
 use images::read_stack;
@@ -207,6 +208,59 @@ pub fn line_integrals(
 }
 
 /// A flat or dark field: one image, or the mean of a stack.
+/// The estimated peak memory of importing `config` (image paths relative to `base`), from the
+/// config alone (an angle file is read; no image is): the full scan's projections, one
+/// channel's images as read (at their raw type's size, else assumed ≤ 4 bytes per value) and
+/// as f32, with full-view FDK references one channel's filtered projections and volume, the
+/// references while stacked, and the scene of the selected views with its copy of them.
+pub fn footprint(config: &ImportConfig, base: &Path) -> Result<Footprint> {
+    let angles = config.angles.resolve(|p| read_angles(&base.join(p)))?;
+    let (g, _) = config.geometry(angles)?;
+    let (views, rows, cols) = (g.views(), g.detector.rows, g.detector.cols);
+    let m = config.channels.len();
+    let pixels = memory::elements("geometry.detector", &[views, rows, cols])?;
+    let voxels = memory::elements("geometry.volume", &[g.volume.nz, g.volume.ny, g.volume.nx])?;
+    let mut f = Footprint::process();
+    f.add(
+        format!("projections of the full scan ({m} channels × {views} views × {rows}×{cols})"),
+        memory::bytes(pixels, 4 * m),
+    );
+    let per_value = config
+        .channels
+        .iter()
+        .flat_map(|c| [&c.counts, &c.line_integrals])
+        .flatten()
+        .map(|s| s.raw.as_ref().map_or(4, |r| r.dtype.size()))
+        .max()
+        .unwrap_or(4);
+    f.add(
+        "one channel's images as read and as f32",
+        memory::bytes(pixels, per_value + 4),
+    );
+    if config.select.reference == ReferenceKind::Fdk {
+        f.add(
+            "full-view FDK of one channel (filtered projections, volume)",
+            memory::bytes(pixels, 4).saturating_add(memory::bytes(voxels, 4)),
+        );
+        f.add(
+            format!("reference volumes, twice while stacked or copied ({m} × {voxels} voxels)"),
+            memory::bytes(voxels, 8 * m),
+        );
+    }
+    let kept = match (config.select.views, config.select.every) {
+        (Some(k), _) => k.min(views),
+        (None, Some(e)) => views.div_ceil(e.max(1)),
+        (None, None) => views,
+    }
+    .saturating_add(config.select.test_views)
+    .min(views);
+    f.add(
+        format!("the scene's {kept} selected views"),
+        memory::bytes(kept * rows * cols, 4 * m),
+    );
+    Ok(f)
+}
+
 fn mean_image(source: &config::ImageSource, base: &Path, field: &str) -> Result<Array2<f32>> {
     let stack = read_stack(source, base).map_err(|e| e.under(field))?;
     stack

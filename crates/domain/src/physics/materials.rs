@@ -15,11 +15,13 @@ pub enum Material {
     Iodine,
     Calcium,
     Aluminium,
+    Iron,
+    Titanium,
 }
 
 impl Material {
     /// Every material, in table order.
-    pub const ALL: [Material; 8] = [
+    pub const ALL: [Material; 10] = [
         Material::Water,
         Material::Air,
         Material::SoftTissue,
@@ -28,6 +30,8 @@ impl Material {
         Material::Iodine,
         Material::Calcium,
         Material::Aluminium,
+        Material::Iron,
+        Material::Titanium,
     ];
 
     /// The snake-case name used in files.
@@ -41,11 +45,14 @@ impl Material {
             Material::Iodine => "iodine",
             Material::Calcium => "calcium",
             Material::Aluminium => "aluminium",
+            Material::Iron => "iron",
+            Material::Titanium => "titanium",
         }
     }
 
     /// Nominal density of the pure material, g/cm³ (the values of the embedded NIST table:
-    /// water 1, dry air at 20 °C, ICRU-44 tissues, elemental solids).
+    /// water 1, dry air at 20 °C, ICRU-44 tissues, elemental solids; iron and titanium from the CRC
+    /// handbook, for metal inserts).
     pub fn density(self) -> f64 {
         match self {
             Material::Water => 1.0,
@@ -56,6 +63,8 @@ impl Material {
             Material::Iodine => 4.93,
             Material::Calcium => 1.55,
             Material::Aluminium => 2.699,
+            Material::Iron => 7.874,
+            Material::Titanium => 4.506,
         }
     }
 

@@ -1,10 +1,16 @@
 use super::*;
 use crate::observe::Silent;
+use crate::physics::Material;
 use crate::projector::Joseph;
 
 /// A small cone-beam phantom config: 24³ volume, 32² detector, 6 + 2 views, three mono channels.
 fn tiny_config() -> SimulateConfig {
-    serde_yaml_ng::from_str(
+    tiny_config_with("phantom: { radius_mm: 110.0 }")
+}
+
+/// [`tiny_config`] with another `object` (YAML under `object:`, indented by two spaces).
+fn tiny_config_with(object: &str) -> SimulateConfig {
+    serde_yaml_ng::from_str(&format!(
         r#"
 name: tiny
 seed: 7
@@ -12,18 +18,18 @@ geometry:
   beam: cone
   dso: 1000.0
   dsd: 1500.0
-  detector: { rows: 32, cols: 32, size_mm: [512.0, 512.0] }
-  volume: { n: 24, size_mm: 256.0 }
+  detector: {{ rows: 32, cols: 32, size_mm: [512.0, 512.0] }}
+  volume: {{ n: 24, size_mm: 256.0 }}
   views: 6
   test_views: 2
 object:
-  phantom: { radius_mm: 110.0 }
+  {object}
 channels:
-  - { kind: mono, kev: 40 }
-  - { kind: mono, kev: 70 }
-  - { kind: mono, kev: 100 }
-"#,
-    )
+  - {{ kind: mono, kev: 40 }}
+  - {{ kind: mono, kev: 70 }}
+  - {{ kind: mono, kev: 100 }}
+"#
+    ))
     .unwrap()
 }
 
@@ -210,4 +216,39 @@ fn every_shipped_config_parses() {
         }
     }
     assert!(n >= 6, "found {n} configs");
+}
+
+#[test]
+fn a_phantom_insert_adds_its_materials() {
+    // A 40×40×80 mm iron rod replacing water: its voxelised iron fraction integrates to the
+    // ellipsoid's volume 4/3·π·20·20·40 mm³ up to the 3³-point sampling of each 10.7 mm voxel
+    // (a few % at this size); one water delta of −1 leaves no water inside it.
+    let mut cfg = tiny_config_with(
+        "phantom:\n    radius_mm: 110.0\n    inserts:\n      - { label: rod, ellipsoid: \
+         { centre: [0, 20, 0], semi_axes: [20, 20, 40] }, materials: [[water, -1.0], [iron, 1.0]] }",
+    );
+    let geometry = cfg.geometry.build(cfg.seed).unwrap();
+    let used = cfg.object.materials_used().unwrap();
+    assert!(used.contains(&Material::Iron) && !used.contains(&Material::Titanium));
+    let data = cfg.object.materials(&geometry, &Silent).unwrap();
+    let (_, iron) = data
+        .fractions
+        .iter()
+        .find(|(m, _)| *m == Material::Iron)
+        .unwrap();
+    let voxel_mm3 = (256.0f64 / 24.0).powi(3);
+    let volume = iron.iter().map(|&f| f as f64).sum::<f64>() * voxel_mm3;
+    let exact = 4.0 / 3.0 * PI * 20.0 * 20.0 * 40.0;
+    assert!((volume / exact - 1.0).abs() < 0.05, "{volume} vs {exact}");
+    assert!(iron.iter().all(|&f| (0.0..=1.0 + 1e-6).contains(&f)));
+
+    // A bad insert is refused, naming it.
+    if let ObjectSpec::Phantom { inserts, .. } = &mut cfg.object {
+        inserts[0].ellipsoid.semi_axes[1] = -1.0;
+    }
+    let e = simulate(&cfg, None, &Silent).unwrap_err().to_string();
+    assert!(
+        e.contains("object.phantom.inserts[0].ellipsoid.semi_axes"),
+        "{e}"
+    );
 }

@@ -52,6 +52,9 @@ pub struct NafConfig {
     pub field: FieldConfig,
     /// Score the volume (when the scene has references) every this many iterations.
     pub eval_every: usize,
+    /// Save the run's state for `prism recon --resume` every this many iterations
+    /// ([`super::resume`]); 0: only when the run is interrupted.
+    pub checkpoint_every: usize,
 }
 
 impl Default for NafConfig {
@@ -71,6 +74,7 @@ impl Default for NafConfig {
             attenuation_range: 2.0,
             field: FieldConfig::default(),
             eval_every: 250,
+            checkpoint_every: 0,
         }
     }
 }

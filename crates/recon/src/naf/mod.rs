@@ -10,8 +10,10 @@
 
 pub mod config;
 pub mod rays;
+pub mod resume;
 
 pub use config::{NafConfig, NafMethod, StepDecay};
+pub use resume::NafCheckpoints;
 
 use crate::evaluate::score_volume;
 use crate::init::{density_scale, fdk_of};
@@ -28,6 +30,7 @@ use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use rays::{ChannelRays, voxel_centres};
+use resume::{FieldProgress, LoopState};
 
 /// Voxels per evaluation batch.
 const EVAL_CHUNK: usize = 1 << 16;
@@ -45,7 +48,17 @@ pub struct ChannelTask<'a> {
     pub reference: Option<ArrayView3<'a, f32>>,
 }
 
-/// Fit a field to one channel; its volume (mm⁻¹, `[z][y][x]` on the scan's grid).
+/// A fit that saves its state: where, the volumes of the channels fitted before this one (they
+/// go into every checkpoint), and the saved state of this channel to continue from.
+pub struct Checkpointed<'r, 'a> {
+    pub checkpoints: &'r mut NafCheckpoints<'a>,
+    pub finished: &'r [Array3<f32>],
+    pub start: Option<FieldProgress>,
+}
+
+/// Fit a field to one channel; its volume (mm⁻¹, `[z][y][x]` on the scan's grid). With
+/// `checkpointed`, the fit saves its state as [`resume`] describes, and ends with
+/// [`Error::Interrupted`] when asked to stop.
 pub fn fit_channel(
     config: &NafConfig,
     geometry: &Geometry,
@@ -53,6 +66,7 @@ pub fn fit_channel(
     device: &Device,
     log: &mut RunLog,
     observer: &dyn Observer,
+    mut checkpointed: Option<Checkpointed>,
 ) -> Result<Array3<f32>> {
     config.validate()?;
     let rays = ChannelRays::new(geometry, task.projections, task.views);
@@ -68,14 +82,39 @@ pub fn fit_channel(
     let seed = config.seed.wrapping_add(task.index as u64);
     let mut field = config.field.init(seed, &train_device)?;
     let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6e61_665f_7261_7973);
+    let rng_seed = seed ^ 0x6e61_665f_7261_7973;
+    let mut rng = ChaCha8Rng::seed_from_u64(rng_seed);
     let mut order: Vec<usize> = Vec::new();
     let (s, nv) = (config.samples_per_ray, rays.views.len());
     let (mut loss_sum, mut loss_n) = (0.0f64, 0usize);
+    let mut first = 0;
+    if let Some(saved) = checkpointed.as_mut().and_then(|c| c.start.take()) {
+        let file = checkpointed
+            .as_ref()
+            .map(|c| c.checkpoints.path().to_path_buf());
+        let file = file.unwrap_or_default();
+        if saved.state.channel != task.index || saved.state.label != task.label {
+            return Err(Error::field(
+                &file,
+                "metadata.current",
+                format!(
+                    "the checkpoint continues channel `{}`, this run's is `{}`",
+                    saved.state.label, task.label
+                ),
+            ));
+        }
+        saved.restore(&mut field, &mut optim, &file)?;
+        let st = saved.state;
+        rng = st.rng(rng_seed, &file)?;
+        (order, loss_sum, loss_n, first) = (st.order, st.loss_sum, st.loss_n, st.iteration);
+    }
     // The volume scored at the last iteration is the result (no second evaluation).
     let mut last = None;
     observer.phase(&format!("naf {}", task.label), config.iterations as u64);
-    for it in 0..config.iterations {
+    if first > 0 {
+        observer.progress(first as u64, "");
+    }
+    for it in first..config.iterations {
         if it % nv == 0 {
             order = (0..nv).collect();
             order.shuffle(&mut rng);
@@ -95,10 +134,14 @@ pub fn fit_channel(
         let loss = (pred - values).powi_scalar(2).mean();
         let value = loss.clone().into_scalar::<f32>() as f64;
         if !value.is_finite() {
+            let saved = checkpointed
+                .as_ref()
+                .map(|c| c.checkpoints.last_written())
+                .unwrap_or_default();
             return Err(Error::Diverged {
                 stage: format!("naf {}", task.label),
                 iter: it + 1,
-                detail: format!("the loss is {value}"),
+                detail: format!("the loss is {value}{saved}"),
             });
         }
         loss_sum += value;
@@ -134,6 +177,33 @@ pub fn fit_channel(
                 ssim: scores.1,
             })?;
             (loss_sum, loss_n) = (0.0, 0);
+        }
+        if let Some(c) = &mut checkpointed {
+            let stop = c.checkpoints.stop_requested();
+            if stop || c.checkpoints.due(done) {
+                let state = LoopState {
+                    channel: task.index,
+                    label: task.label.to_string(),
+                    iteration: done,
+                    rng_word_pos: rng.get_word_pos().to_string(),
+                    order: order.clone(),
+                    loss_sum,
+                    loss_n,
+                };
+                let saved = log.saved();
+                // Writing a checkpoint is not training time.
+                log.evaluating(|| {
+                    let progress = FieldProgress::of(&field, &optim, state)?;
+                    c.checkpoints.save(c.finished, &progress, &saved)
+                })?;
+            }
+            if stop {
+                return Err(Error::Interrupted {
+                    stage: format!("naf {}", task.label),
+                    iter: done,
+                    checkpoint: c.checkpoints.path().to_path_buf(),
+                });
+            }
         }
     }
     match last {

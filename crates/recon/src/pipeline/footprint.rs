@@ -12,7 +12,7 @@
 //! * NAF: the hash grid's tables with their Adam moments and one batch of samples.
 //!
 //! The per-item constants were measured with `/usr/bin/time -v` (peak resident size) on runs of
-//! known size; see [`GAUSSIAN_BYTES`] and [`PROCESS_BYTES`].
+//! known size; see [`GAUSSIAN_BYTES`] and [`prism_domain::memory::PROCESS_BYTES`].
 
 use crate::MethodConfig;
 use crate::classic::ClassicMethod;
@@ -20,10 +20,6 @@ use crate::classic::sart::{block_count, caches_column_sums};
 use crate::gaussian::config::GaussianMethod;
 use prism_domain::memory::{Footprint, bytes};
 use prism_domain::scene::Scene;
-
-/// The process before any data: code, the allocator's arenas, thread stacks (measured: `prism
-/// info` holds 22 MB with a 3.6 MB scene).
-pub const PROCESS_BYTES: u64 = 20_000_000;
 
 /// Bytes per Gaussian at a training iteration's peak, plus 16 per density column: the
 /// parameters with gradients and two Adam moments, the render's per-Gaussian preparation, tile
@@ -56,8 +52,7 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
     let channels = scene.n_channels();
     let views = scene.n_views();
     let train = scene.split.train.len();
-    let mut f = Footprint::default();
-    f.add("the process (code, allocator, threads)", PROCESS_BYTES);
+    let mut f = Footprint::process();
     f.add(
         format!("the scene: projections ({channels} × {views} views × {rows}×{cols})"),
         bytes(scene.projections.len(), 4),

@@ -4,12 +4,15 @@ use super::run_dir::RunDir;
 use super::setup::{RunOptions, Setup};
 use crate::Result;
 use crate::evaluate::{Metrics, Reconstruction, TestProjector, metrics};
-use crate::naf::{ChannelTask, NafConfig, fit_channel};
+use crate::naf::{ChannelTask, Checkpointed, NafCheckpoints, NafConfig, fit_channel};
+use crate::train::fingerprint::Fingerprint;
 use crate::train::log::RunLog;
 use ndarray::Axis;
 use prism_domain::scene::Scene;
 
-/// Fit every channel of `scene` into `dir`; the scores when the scene has references.
+/// Fit every channel of `scene` into `dir`; the scores when the scene has references. With
+/// `options.checkpoint` the run saves its state (`crate::naf::resume`), or continues the saved
+/// one: its finished channels' volumes are taken as they are.
 pub(super) fn run(
     config: &NafConfig,
     scene: &Scene,
@@ -20,7 +23,27 @@ pub(super) fn run(
     let setup = Setup::new(scene, Vec::new(), options.observer)?;
     let mut log = RunLog::create(&dir.file(RunDir::LOG))?;
     let mut volumes = Vec::new();
-    for (c, ch) in scene.channels.iter().enumerate() {
+    let mut start = None;
+    let mut checkpoints = match &options.checkpoint {
+        Some(c) => {
+            let fingerprint = Fingerprint::new(config, scene, &[], &[])?;
+            let ck =
+                NafCheckpoints::new(c.path.clone(), config.checkpoint_every, fingerprint, c.stop);
+            if c.resume {
+                let g = &scene.geometry.volume;
+                let saved = ck.read(scene.channels.len(), [g.nz, g.ny, g.nx])?;
+                log.restore(&saved.log)?;
+                for (v, ch) in saved.finished.iter().zip(&scene.channels) {
+                    dir.write_volume(&ch.label, v)?;
+                }
+                volumes = saved.finished;
+                start = saved.current;
+            }
+            Some(ck)
+        }
+        None => None,
+    };
+    for (c, ch) in scene.channels.iter().enumerate().skip(volumes.len()) {
         let reference = scene.references.as_ref().map(|r| r.index_axis(Axis(0), c));
         let task = ChannelTask {
             label: &ch.label,
@@ -36,6 +59,11 @@ pub(super) fn run(
             &options.device,
             &mut log,
             options.observer,
+            checkpoints.as_mut().map(|checkpoints| Checkpointed {
+                checkpoints,
+                finished: &volumes,
+                start: start.take(),
+            }),
         )
         .map_err(|e| e.under(&format!("channels[{c}]")))?;
         dir.write_volume(&ch.label, &vol)?;

@@ -1,6 +1,6 @@
-//! Interrupted Gaussian runs, resumed from their checkpoint, end exactly as uninterrupted ones
-//! (`crate::train::resume`); divergence saves the last good state; mismatched resumes are
-//! refused.
+//! Interrupted Gaussian and NAF runs, resumed from their checkpoint, end exactly as
+//! uninterrupted ones (`crate::train::resume`, `crate::naf::resume`); divergence saves the last
+//! good state; mismatched resumes are refused.
 
 use super::gaussian_tests::{losses, three_channel_scene, tiny};
 use super::tests::scene;
@@ -40,6 +40,19 @@ fn run_stopped(
     out: &Path,
     ckpt: &Path,
     resume: bool,
+    stop: (&str, u64),
+) -> Result<()> {
+    let config = MethodConfig::Gaussian(Box::new(cfg.clone()));
+    run_method_stopped(&config, scene, out, ckpt, resume, stop)
+}
+
+/// [`run_stopped`] for any method.
+fn run_method_stopped(
+    config: &MethodConfig,
+    scene: &Scene,
+    out: &Path,
+    ckpt: &Path,
+    resume: bool,
     (phase, at): (&str, u64),
 ) -> Result<()> {
     let flag = AtomicBool::new(false);
@@ -60,8 +73,7 @@ fn run_stopped(
             stop: Some(&flag),
         }),
     };
-    let config = MethodConfig::Gaussian(Box::new(cfg.clone()));
-    run(&config, scene, RunDir::create(out, true)?, &options).map(|_| ())
+    run(config, scene, RunDir::create(out, true)?, &options).map(|_| ())
 }
 
 /// The files of a finished run that must be identical: models, volumes and losses.
@@ -218,4 +230,77 @@ fn a_diverging_run_saves_its_last_good_state() {
         "{e}"
     );
     assert!(ckpt.is_file());
+}
+
+/// NAF stopped in its first channel at a scheduled checkpoint's iteration, then in its second
+/// (the first channel's volume saved), resumed each time: the uninterrupted run's volumes and
+/// log; a file from other settings is refused.
+#[test]
+fn an_interrupted_naf_run_resumes_exactly() {
+    let scene = scene();
+    let yaml = "method: naf\niterations: 30\nrays_per_batch: 64\nsamples_per_ray: 12\n\
+                eval_every: 10\ncheckpoint_every: 7\n\
+                field: {width: 8, hash_grid: {levels: 3, base_resolution: 4, growth: 2.0, \
+                log2_table_size: 8}}\n";
+    let config = MethodConfig::from_yaml(yaml, Path::new("naf.yaml")).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let ckpt = tmp.path().join("b.ckpt");
+    let none = ("", 0);
+    run_method_stopped(&config, &scene, &a, &tmp.path().join("a.ckpt"), false, none).unwrap();
+
+    let first = format!("naf {}", scene.channels[0].label);
+    let e = run_method_stopped(&config, &scene, &b, &ckpt, false, (&first, 14)).unwrap_err();
+    interrupted(e, &ckpt, &first, 14);
+    let second = format!("naf {}", scene.channels[1].label);
+    let e = run_method_stopped(&config, &scene, &b, &ckpt, true, (&second, 11)).unwrap_err();
+    interrupted(e, &ckpt, &second, 11);
+
+    let MethodConfig::Naf(naf) = &config else {
+        unreachable!()
+    };
+    let mut other = naf.as_ref().clone();
+    other.samples_per_ray = 13;
+    let e = run_method_stopped(
+        &MethodConfig::Naf(Box::new(other)),
+        &scene,
+        &b,
+        &ckpt,
+        true,
+        none,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("b.ckpt") && e.contains("`samples_per_ray`"),
+        "{e}"
+    );
+
+    run_method_stopped(&config, &scene, &b, &ckpt, true, none).unwrap();
+    // The log's records, times aside: iterations, losses, PSNR and SSIM.
+    let records = |d: &Path| -> Vec<serde_json::Value> {
+        let text = std::fs::read_to_string(d.join(RunDir::LOG)).unwrap();
+        text.lines()
+            .map(|l| {
+                let mut v: serde_json::Value = serde_json::from_str(l).unwrap();
+                let o = v.as_object_mut().unwrap();
+                o.remove("wall_s");
+                o.remove("train_s");
+                v
+            })
+            .collect()
+    };
+    assert_eq!(records(&a).len(), 6);
+    assert_eq!(records(&a), records(&b), "log");
+    let mut compared = 0;
+    for ch in &scene.channels {
+        let name = RunDir::volume_file(&ch.label);
+        assert!(
+            std::fs::read(a.join(&name)).unwrap() == std::fs::read(b.join(&name)).unwrap(),
+            "{name} differs"
+        );
+        compared += 1;
+    }
+    assert!(compared >= 2);
+    assert!(!ckpt.exists());
 }

@@ -22,11 +22,12 @@ pub struct RunOptions<'a> {
     pub observer: &'a dyn Observer,
     /// How the volumes are scored (`metrics.json`, `holdout.json`).
     pub evaluation: &'a Evaluation,
-    /// Gaussian methods: where the run saves its state, and whether it continues from it.
+    /// Gaussian methods and NAF: where the run saves its state, and whether it continues from
+    /// it.
     pub checkpoint: Option<Checkpointing<'a>>,
 }
 
-/// A Gaussian run's checkpoint (`crate::train::resume`): written to `path` when `stop` is set
+/// A Gaussian or NAF run's checkpoint (`crate::train::resume`, `crate::naf::resume`): written to `path` when `stop` is set
 /// (the run then ends with [`Error::Interrupted`]), when a stage diverges and every
 /// `checkpoint_every` iterations; removed when the run is published.
 pub struct Checkpointing<'a> {
@@ -41,13 +42,12 @@ impl RunOptions<'_> {
     /// create the run directory).
     pub fn check(&self, config: &MethodConfig) -> Result<()> {
         let method = config.method();
-        if self.checkpoint.as_ref().is_some_and(|c| c.resume)
-            && !matches!(config, MethodConfig::Gaussian(_))
-        {
+        if self.checkpoint.as_ref().is_some_and(|c| c.resume) && !method.trains() {
             return Err(Error::invalid(
                 "--resume",
                 format!(
-                    "`{}` saves no training state: --resume applies to the Gaussian methods",
+                    "`{}` saves no training state: --resume applies to the Gaussian methods \
+                     and NAF",
                     method.name()
                 ),
             ));

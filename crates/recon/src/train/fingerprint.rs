@@ -27,8 +27,8 @@ const NEVER: [&str; 2] = ["device", "checkpoint_every"];
 impl Fingerprint {
     /// The fingerprint of `config` on `scene`, leaving out the keys `ignore` (and [`NEVER`]);
     /// `extra` entries are added to the settings (options outside the config).
-    pub fn new(
-        config: &GaussianConfig,
+    pub fn new<C: Serialize>(
+        config: &C,
         scene: &Scene,
         ignore: &[&str],
         extra: &[(&str, Value)],
@@ -52,7 +52,8 @@ impl Fingerprint {
 
     /// Why a state saved with fingerprint `self` cannot serve a run with `wanted`, if it
     /// cannot. A setting added after the state was written is absent from it; the state was
-    /// trained with that setting's default.
+    /// trained with that setting's default (of the Gaussian config: NAF's files are newer than
+    /// all of its settings).
     pub fn mismatch(&self, wanted: &Fingerprint) -> Option<String> {
         if self.scene != wanted.scene || self.scene_digest != wanted.scene_digest {
             return Some(format!(

@@ -36,7 +36,7 @@ use crate::gaussian::io::{TensorFile, Tensors, json_meta};
 use crate::gaussian::state::{ModelMeta, ModelState};
 use crate::{Error, Result};
 use burn::module::Module;
-use burn::optim::AdamConfig;
+use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::store::ModuleRecord;
 use burn::tensor::{Bytes, Device};
 use serde::{Deserialize, Serialize};
@@ -46,34 +46,38 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 const FORMAT: &str = "prism-resume/1";
 
-/// A curve model and its optimiser, as Burn's records (exact).
+/// A network and its optimiser, as Burn's records (exact): a curve model, or NAF's field.
 #[derive(Clone, Debug, PartialEq)]
-struct CurveState {
-    net: Vec<u8>,
-    optim: Vec<u8>,
+pub(crate) struct NetState {
+    pub net: Vec<u8>,
+    pub optim: Vec<u8>,
 }
 
-impl CurveState {
-    fn of(c: &CurveFit) -> Result<Self> {
+impl NetState {
+    pub fn of<M: Module>(net: &M, optim: &ModuleOptimizer) -> Result<Self> {
         let fail = |e: burn::store::RecordError| {
-            Error::invalid(
-                "curve model",
-                format!("its state cannot be recorded: {e:?}"),
-            )
+            Error::invalid("network", format!("its state cannot be recorded: {e:?}"))
         };
-        Ok(CurveState {
-            net: c
-                .net
+        Ok(NetState {
+            net: net
                 .clone()
                 .into_record()
                 .into_bytes()
                 .map_err(fail)?
                 .to_vec(),
-            optim: c.optim.into_bytes().map_err(fail)?.to_vec(),
+            optim: optim.into_bytes().map_err(fail)?.to_vec(),
         })
     }
 
-    fn restore(&self, c: &mut CurveFit, file: &Path, prefix: &str) -> Result<()> {
+    /// Load the saved records into `net` and `optim` (errors name `<prefix>net` / `optim` of
+    /// `file`).
+    pub fn restore<M: Module>(
+        &self,
+        net: &mut M,
+        optim: &mut ModuleOptimizer,
+        file: &Path,
+        prefix: &str,
+    ) -> Result<()> {
         let bad = |what: &str, e: burn::store::RecordError| {
             Error::field(
                 file,
@@ -83,16 +87,110 @@ impl CurveState {
         };
         let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(self.net.clone()))
             .map_err(|e| bad("net", e))?;
-        c.net = c
-            .net
+        *net = net
             .clone()
             .try_load_record(record)
             .map_err(|e| bad("net", e))?;
-        let optim = std::mem::replace(&mut c.optim, AdamConfig::new().init());
-        c.optim = optim
+        let saved = std::mem::replace(optim, AdamConfig::new().init());
+        *optim = saved
             .from_bytes(Bytes::from_bytes_vec(self.optim.clone()))
             .map_err(|e| bad("optim", e))?;
         Ok(())
+    }
+
+    /// Add the records to `out` as `<prefix>net` and `<prefix>optim`.
+    pub fn add_to(&self, prefix: &str, out: &mut Tensors) {
+        out.u8(format!("{prefix}net"), self.net.clone());
+        out.u8(format!("{prefix}optim"), self.optim.clone());
+    }
+
+    /// The records [`NetState::add_to`] stored under `prefix`.
+    pub fn read(f: &TensorFile, prefix: &str) -> Result<Self> {
+        Ok(NetState {
+            net: f.bytes(&format!("{prefix}net"))?,
+            optim: f.bytes(&format!("{prefix}optim"))?,
+        })
+    }
+}
+
+/// Where a run's state is saved, how often, and what a file must match to be resumed from:
+/// the part of [`Checkpoints`] that NAF's (`crate::naf::resume`) shares.
+pub(crate) struct ResumeFile<'a> {
+    path: PathBuf,
+    every: usize,
+    fingerprint: Fingerprint,
+    stop: Option<&'a AtomicBool>,
+}
+
+impl<'a> ResumeFile<'a> {
+    /// Save to `path` every `every` iterations (0: only when stopped or diverging) and when
+    /// `stop` is set; refuse files whose fingerprint differs from `fingerprint`.
+    pub fn new(
+        path: PathBuf,
+        every: usize,
+        fingerprint: Fingerprint,
+        stop: Option<&'a AtomicBool>,
+    ) -> Self {
+        ResumeFile {
+            path,
+            every,
+            fingerprint,
+            stop,
+        }
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Whether the run was asked to stop.
+    pub fn stop_requested(&self) -> bool {
+        self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+    }
+
+    /// Whether iteration `it` ends with a scheduled checkpoint.
+    pub fn due(&self, it: usize) -> bool {
+        self.every > 0 && it.is_multiple_of(self.every)
+    }
+
+    /// The file to resume from: it must exist, be of `format` and carry this run's fingerprint.
+    pub fn open(&self, format: &str) -> Result<TensorFile<'_>> {
+        let path = &self.path;
+        if !path.is_file() {
+            return Err(Error::field(
+                path,
+                ".",
+                "no checkpoint to resume from (a run writes one when interrupted, diverging, or \
+                 every `checkpoint_every` iterations)",
+            ));
+        }
+        let f = TensorFile::open(path, format)?;
+        let saved: Fingerprint = f.json("fingerprint")?;
+        if let Some(why) = saved.mismatch(&self.fingerprint) {
+            return Err(Error::field(
+                path,
+                "metadata.fingerprint",
+                format!("this checkpoint does not belong to this run: {why}"),
+            ));
+        }
+        Ok(f)
+    }
+
+    /// Write `tensors` and the JSON metadata `meta` (`format` and `fingerprint` added) beside
+    /// the file and rename it over the previous one: a crash while writing keeps the last
+    /// complete checkpoint.
+    pub fn write(&self, format: &str, tensors: &Tensors, meta: Vec<(&str, String)>) -> Result<()> {
+        let path = &self.path;
+        let fingerprint = json_meta(path, "fingerprint", &self.fingerprint)?;
+        let meta: HashMap<String, String> =
+            [("format", format.to_string()), ("fingerprint", fingerprint)]
+                .into_iter()
+                .chain(meta)
+                .map(|(k, v)| (k.to_string(), v))
+                .collect();
+        let tmp = path.with_extension("partial");
+        tensors.write(&tmp, meta)?;
+        std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
     }
 }
 
@@ -102,7 +200,7 @@ struct Snapshot {
     stage: String,
     channel: String,
     model: ModelState,
-    curve: Option<CurveState>,
+    curve: Option<NetState>,
     log: SavedLog,
 }
 
@@ -151,10 +249,7 @@ struct CurrentMeta {
 
 /// Where a run saves its state, when, and what it resumes from (see the module docs).
 pub struct Checkpoints<'a> {
-    path: PathBuf,
-    every: usize,
-    fingerprint: Fingerprint,
-    stop: Option<&'a AtomicBool>,
+    file: ResumeFile<'a>,
     /// The stages finished so far (host copies, to write with every checkpoint).
     done: Vec<Finished>,
     /// What the resume file held and this run has not replayed yet.
@@ -173,10 +268,7 @@ impl<'a> Checkpoints<'a> {
         stop: Option<&'a AtomicBool>,
     ) -> Self {
         Checkpoints {
-            path,
-            every,
-            fingerprint,
-            stop,
+            file: ResumeFile::new(path, every, fingerprint, stop),
             done: Vec::new(),
             resume: None,
             written: None,
@@ -186,24 +278,8 @@ impl<'a> Checkpoints<'a> {
     /// Continue the run saved in this checkpoint's file (refused when it belongs to another
     /// scene or settings).
     pub fn resume_from_file(mut self) -> Result<Self> {
-        let path = self.path.clone();
-        if !path.is_file() {
-            return Err(Error::field(
-                &path,
-                ".",
-                "no checkpoint to resume from (a run writes one when interrupted, diverging, or \
-                 every `checkpoint_every` iterations)",
-            ));
-        }
-        let f = TensorFile::open(&path, FORMAT)?;
-        let saved: Fingerprint = f.json("fingerprint")?;
-        if let Some(why) = saved.mismatch(&self.fingerprint) {
-            return Err(Error::field(
-                &path,
-                "metadata.fingerprint",
-                format!("this checkpoint does not belong to this run: {why}"),
-            ));
-        }
+        let f = self.file.open(FORMAT)?;
+        let path = f.path().to_path_buf();
         let done_meta: Vec<FinishedMeta> = f.json("done")?;
         let done = done_meta
             .into_iter()
@@ -258,17 +334,17 @@ impl<'a> Checkpoints<'a> {
 
     /// Where the checkpoint is written.
     pub fn path(&self) -> &Path {
-        &self.path
+        self.file.path()
     }
 
     /// Whether the run was asked to stop.
     pub fn stop_requested(&self) -> bool {
-        self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+        self.file.stop_requested()
     }
 
     /// Whether iteration `it` ends with a scheduled checkpoint.
     pub fn due(&self, it: usize) -> bool {
-        self.every > 0 && it.is_multiple_of(self.every)
+        self.file.due(it)
     }
 
     /// The `index`-th stage of this run, when the resume file finished it: its model (and curve
@@ -311,7 +387,7 @@ impl<'a> Checkpoints<'a> {
         }
         let Some(c) = current.take() else {
             return Err(Error::field(
-                &self.path,
+                self.file.path(),
                 "metadata.done",
                 format!(
                     "the checkpoint holds {} finished stages and no stage in progress, this run \
@@ -329,7 +405,7 @@ impl<'a> Checkpoints<'a> {
     fn check_stage(&self, index: usize, at: &Snapshot, stage: &Stage) -> Result<()> {
         if at.stage != stage.name || at.channel != stage.channel {
             return Err(Error::field(
-                &self.path,
+                self.file.path(),
                 "metadata",
                 format!(
                     "the checkpoint's stage {index} is `{} {}`, this run's is `{} {}`: resume \
@@ -351,7 +427,7 @@ impl<'a> Checkpoints<'a> {
         let device: Device = model.device();
         if at.model.meta().channels != model.channels() {
             return Err(Error::field(
-                &self.path,
+                self.file.path(),
                 format!("{prefix}densities_raw"),
                 format!(
                     "{} density columns saved, this stage trains {}",
@@ -362,10 +438,10 @@ impl<'a> Checkpoints<'a> {
         }
         *model = at.model.to_model(&device);
         match (curve, &at.curve) {
-            (Some(c), Some(s)) => s.restore(c, &self.path, prefix),
+            (Some(c), Some(s)) => s.restore(&mut c.net, &mut c.optim, self.file.path(), prefix),
             (None, None) => Ok(()),
             (c, _) => Err(Error::field(
-                &self.path,
+                self.file.path(),
                 format!("{prefix}net"),
                 format!(
                     "the checkpoint {} a curve model, this stage {}",
@@ -394,7 +470,7 @@ impl<'a> Checkpoints<'a> {
                 stage: stage.name.to_string(),
                 channel: stage.channel.to_string(),
                 model: ModelState::of(model),
-                curve: curve.map(CurveState::of).transpose()?,
+                curve: curve.map(|c| NetState::of(&c.net, &c.optim)).transpose()?,
                 log,
             },
             report: report.clone(),
@@ -431,7 +507,7 @@ impl<'a> Checkpoints<'a> {
     ) -> Result<String> {
         trainer.rewind(before);
         let current = Self::current(index, stage, trainer, progress, log)?;
-        let path = self.path.display().to_string();
+        let path = self.file.path().display().to_string();
         if current.at.model.is_finite() {
             self.write(&current)?;
             return Ok(format!(
@@ -464,7 +540,10 @@ impl<'a> Checkpoints<'a> {
                 stage: stage.name.to_string(),
                 channel: stage.channel.to_string(),
                 model: ModelState::of(trainer.model()),
-                curve: trainer.curve().map(CurveState::of).transpose()?,
+                curve: trainer
+                    .curve()
+                    .map(|c| NetState::of(&c.net, &c.optim))
+                    .transpose()?,
                 log,
             },
             trainer: trainer.state(),
@@ -473,7 +552,7 @@ impl<'a> Checkpoints<'a> {
     }
 
     fn write(&mut self, current: &Current) -> Result<()> {
-        let path = &self.path;
+        let path = self.file.path();
         let mut tensors = Tensors::default();
         let mut done_meta = Vec::new();
         for (i, f) in self.done.iter().enumerate() {
@@ -494,23 +573,11 @@ impl<'a> Checkpoints<'a> {
             stats: current.trainer.stats.is_some(),
             progress: current.progress.clone(),
         };
-        let meta: HashMap<String, String> = [
-            ("format", FORMAT.to_string()),
-            (
-                "fingerprint",
-                json_meta(path, "fingerprint", &self.fingerprint)?,
-            ),
+        let meta = vec![
             ("done", json_meta(path, "done", &done_meta)?),
             ("current", json_meta(path, "current", &Some(current_meta))?),
-        ]
-        .into_iter()
-        .map(|(k, v)| (k.to_string(), v))
-        .collect();
-        // Written beside and renamed over the previous file: a crash while writing keeps the
-        // last complete checkpoint.
-        let tmp = path.with_extension("partial");
-        tensors.write(&tmp, meta)?;
-        std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))?;
+        ];
+        self.file.write(FORMAT, &tensors, meta)?;
         self.written = Some((current.index, current.progress.iteration));
         Ok(())
     }
@@ -519,8 +586,7 @@ impl<'a> Checkpoints<'a> {
 fn add_snapshot(at: &Snapshot, prefix: &str, out: &mut Tensors) -> SnapshotMeta {
     at.model.add_to(prefix, out);
     if let Some(c) = &at.curve {
-        out.u8(format!("{prefix}net"), c.net.clone());
-        out.u8(format!("{prefix}optim"), c.optim.clone());
+        c.add_to(prefix, out);
     }
     SnapshotMeta {
         stage: at.stage.clone(),
@@ -533,10 +599,7 @@ fn add_snapshot(at: &Snapshot, prefix: &str, out: &mut Tensors) -> SnapshotMeta 
 
 fn read_snapshot(f: &TensorFile, prefix: &str, m: SnapshotMeta) -> Result<Snapshot> {
     let curve = if m.curve {
-        Some(CurveState {
-            net: f.bytes(&format!("{prefix}net"))?,
-            optim: f.bytes(&format!("{prefix}optim"))?,
-        })
+        Some(NetState::read(f, prefix)?)
     } else {
         None
     };
