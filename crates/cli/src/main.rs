@@ -8,6 +8,7 @@ mod ablate;
 mod alloc;
 mod args;
 mod bench;
+mod decompose;
 mod experiment;
 mod export;
 mod import;
@@ -68,6 +69,9 @@ enum Command {
     Recon(recon::ReconArgs),
     /// Volume or projections of a trained spectral model at any spectral coordinate.
     Query(query::Args),
+    /// Basis-material fractions (water, bone, iodine, …) and virtual monoenergetic images from
+    /// a run's channel volumes.
+    Decompose(decompose::Args),
     /// Per-channel PSNR/SSIM table of finished runs, with the paths of their volumes.
     Report(report::Args),
     /// 4D-SG stage-2 ablations (freezing strategies, GSC-Net vs MLP) from one shared stage 1.
@@ -92,6 +96,7 @@ fn main() -> ExitCode {
         Command::Info(args) => info::run(args),
         Command::Recon(args) => recon::run_cmd(args),
         Command::Query(args) => query::run(args),
+        Command::Decompose(args) => decompose::run(args),
         Command::Report(args) => report::run(args),
         Command::Ablate(args) => ablate::run(args),
         Command::Bench(args) => bench::run(args),

@@ -9,6 +9,7 @@
 //! implemented once in [`geometry`]. Long computations report progress through an
 //! [`observe::Observer`]; this crate never prints.
 
+pub mod decompose;
 pub mod error;
 pub mod export;
 pub mod geometry;

@@ -1,0 +1,161 @@
+use super::*;
+use ndarray::Array3;
+use rand::{Rng, SeedableRng};
+
+fn mono(kevs: &[f64]) -> Vec<ChannelSpec> {
+    kevs.iter().map(|&kev| ChannelSpec::Mono { kev }).collect()
+}
+
+/// Channel values of the fractions `x` under `d`'s channel matrix.
+fn forward(d: &Decomposition, x: &[f64]) -> Vec<f64> {
+    d.matrix()
+        .iter()
+        .map(|row| row.iter().zip(x).map(|(a, x)| a * x).sum())
+        .collect()
+}
+
+#[test]
+fn noise_free_mixtures_are_recovered_exactly() {
+    // Water, bone and iodine seen at 40/60/80/100 keV: any non-negative mixture is recovered to
+    // rounding. Water and bone differ only in their photoelectric-to-Compton ratio, so the
+    // matrix is poorly conditioned (184) though separable: noise is what it amplifies.
+    let d = Decomposition::new(Basis::body(), &mono(&[40.0, 60.0, 80.0, 100.0])).unwrap();
+    let c = d.separability.condition;
+    assert!((150.0..250.0).contains(&c), "{:?}", d.separability);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+    for _ in 0..200 {
+        let x = [
+            rng.random::<f64>(),
+            rng.random::<f64>() * 0.5,
+            rng.random::<f64>() * 0.01,
+        ];
+        let got = d.solve(&forward(&d, &x));
+        for (g, w) in got.iter().zip(x) {
+            assert!((g - w).abs() < 1e-9, "{got:?} vs {x:?}");
+        }
+    }
+}
+
+#[test]
+fn solutions_satisfy_the_non_negative_least_squares_optimality_conditions() {
+    // KKT: with g = Aᵀ(Ax − μ), every positive fraction has g = 0 and every zero one g ≥ 0.
+    // Inputs outside the basis' cone (adipose, air, negative noise) exercise the constraints.
+    let d = Decomposition::new(Basis::body(), &mono(&[30.0, 36.0, 60.0, 90.0])).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+    for _ in 0..500 {
+        let mu: Vec<f64> = (0..4).map(|_| rng.random::<f64>() * 0.1 - 0.03).collect();
+        let x = d.solve(&mu);
+        let r: Vec<f64> = forward(&d, &x)
+            .iter()
+            .zip(&mu)
+            .map(|(a, m)| a - m)
+            .collect();
+        let scale: f64 = mu.iter().map(|m| m.abs()).sum::<f64>() * 10.0;
+        for (b, xb) in x.iter().enumerate() {
+            let g: f64 = d.matrix().iter().zip(&r).map(|(a, r)| a[b] * r).sum();
+            assert!(*xb >= 0.0);
+            if *xb > 0.0 {
+                assert!(g.abs() < 1e-12 * scale, "{x:?} {g}");
+            } else {
+                assert!(g > -1e-12 * scale, "{x:?} {g}");
+            }
+        }
+    }
+    // All channels at or below zero: nothing.
+    assert_eq!(d.solve(&[-0.01, 0.0, -0.02, -0.001]), vec![0.0; 3]);
+}
+
+#[test]
+fn channels_that_cannot_separate_the_basis_are_refused_naming_the_pair() {
+    let e = Decomposition::new(Basis::body(), &mono(&[40.0, 80.0]))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("at least 3 channels"), "{e}");
+    // Water and soft tissue attenuate nearly in proportion at every energy.
+    let basis = Basis::new(&[Material::Water, Material::SoftTissue]).unwrap();
+    let e = Decomposition::new(basis, &mono(&[60.0, 80.0, 100.0]))
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("water") && e.contains("soft_tissue"), "{e}");
+    assert!(Basis::new(&[Material::Water, Material::Water]).is_err());
+    assert!(Basis::new(&[]).is_err());
+}
+
+#[test]
+fn the_noise_gain_is_the_least_squares_standard_deviation() {
+    // One basis material: fraction = aᵀμ / aᵀa, whose standard deviation under unit channel noise
+    // is 1/‖a‖.
+    let basis = Basis::new(&[Material::Water]).unwrap();
+    let d = Decomposition::new(basis, &mono(&[40.0, 70.0])).unwrap();
+    let a: Vec<f64> = [40.0, 70.0]
+        .iter()
+        .map(|&e| Material::Water.mu(e).unwrap())
+        .collect();
+    let norm = (a[0] * a[0] + a[1] * a[1]).sqrt();
+    assert!((d.separability.noise_gain[0] * norm - 1.0).abs() < 1e-12);
+    assert!((d.separability.condition - 1.0).abs() < 1e-12);
+    // Three materials: the empirical spread of the unconstrained fractions under Gaussian noise
+    // matches the gains (well inside the basis' cone, the constraints are inactive).
+    let d = Decomposition::new(Basis::body(), &mono(&[40.0, 60.0, 80.0, 100.0])).unwrap();
+    let x = [1.0, 0.3, 0.01];
+    let clean = forward(&d, &x);
+    let sigma = 1e-5;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let normal = rand_distr::Normal::new(0.0, sigma).unwrap();
+    let n = 4000;
+    let mut var = [0.0f64; 3];
+    for _ in 0..n {
+        let mu: Vec<f64> = clean.iter().map(|v| v + rng.sample(normal)).collect();
+        for (v, (g, w)) in var.iter_mut().zip(d.solve(&mu).iter().zip(x)) {
+            *v += (g - w).powi(2) / n as f64;
+        }
+    }
+    for (b, v) in var.iter().enumerate() {
+        let want = d.separability.noise_gain[b] * sigma;
+        // 4000 samples: the standard deviation's estimate is within ±5 % at 3σ.
+        assert!(
+            (v.sqrt() / want - 1.0).abs() < 0.05,
+            "{b}: {} vs {want}",
+            v.sqrt()
+        );
+    }
+}
+
+#[test]
+fn virtual_monoenergetic_images_follow_the_basis_attenuation() {
+    let basis = Basis::body();
+    let d = Decomposition::new(basis.clone(), &mono(&[40.0, 60.0, 80.0])).unwrap();
+    let x = [0.9, 0.2, 0.004];
+    let channels: Vec<Array3<f32>> = forward(&d, &x)
+        .into_iter()
+        .map(|v| Array3::from_elem((2, 3, 4), v as f32))
+        .collect();
+    let views: Vec<_> = channels.iter().map(|c| c.view()).collect();
+    let fractions = d.volumes(&views).unwrap();
+    for (f, w) in fractions.iter().zip(x) {
+        assert!(
+            f.iter().all(|v| (*v as f64 - w).abs() < 1e-5 * w.max(0.1)),
+            "{f:?}"
+        );
+    }
+    // At an observed energy the VMI is that channel's volume; at 55 keV the mixture's μ(55).
+    let at60 = vmi(&basis, &fractions, 60.0).unwrap();
+    assert!(
+        at60.iter()
+            .zip(channels[1].iter())
+            .all(|(a, b)| (a - b).abs() < 1e-6)
+    );
+    let want: f64 = basis
+        .mu(55.0)
+        .unwrap()
+        .iter()
+        .zip(x)
+        .map(|(m, x)| m * x)
+        .sum();
+    let at55 = vmi(&basis, &fractions, 55.0).unwrap();
+    assert!(at55.iter().all(|v| (*v as f64 / want - 1.0).abs() < 1e-5));
+    assert!(vmi(&basis, &fractions, 200.0).is_err());
+    assert!(vmi(&basis, &fractions[..2], 60.0).is_err());
+}
