@@ -4,7 +4,7 @@
 
 use anyhow::{Context, bail};
 use ndarray::Array3;
-use prism_domain::decompose::{Basis, Decomposition, channel_specs, vmi};
+use prism_domain::decompose::{Basis, Decomposition, basis_truth, channel_specs, true_vmi, vmi};
 use prism_domain::metrics::psnr::psnr;
 use prism_domain::physics::{ChannelSpec, Material};
 use prism_domain::scene::Scene;
@@ -51,21 +51,30 @@ struct Report {
     /// Standard deviation of each fraction per mm⁻¹ of channel-volume noise.
     noise_gain: Vec<f64>,
     vmi: Vec<Vmi>,
-    /// Against the decomposition of the scene's reference volumes, inside the body (voxels
-    /// where any reference exceeds 1 % of its maximum).
+    /// Against the decomposition of the scene's reference volumes (the reconstruction's error
+    /// alone), inside the body (voxels where any reference exceeds 1 % of its maximum).
     against_references: Option<Scores>,
+    /// Against the simulated object's material fractions, spread over the basis by their
+    /// equivalents over `energies_kev`, and its true monoenergetic images (the basis model's
+    /// error included).
+    against_truth: Option<Scores>,
 }
 
 #[derive(Serialize)]
 struct Vmi {
     kev: f64,
     file: String,
+    /// The simulated object's true monoenergetic image (to score any other method's image).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    truth: Option<String>,
     /// Outside the channels' energies: an extrapolation of the basis model.
     extrapolated: bool,
 }
 
 #[derive(Serialize)]
 struct Scores {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    energies_kev: Option<[f64; 2]>,
     voxels: usize,
     /// Per basis material: RMSE of the fraction.
     fraction_rmse: Vec<f64>,
@@ -113,58 +122,43 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .iter()
         .map(|&e| vmi(&basis, &fractions, e))
         .collect::<Result<Vec<_>, _>>()?;
-    let against_references = match &scene.references {
-        Some(r) => {
-            let refs: Vec<_> = r.outer_iter().collect();
-            let truth = d.volumes(&refs)?;
+    // Scored inside the body: voxels where any reference exceeds 1 % of the largest value.
+    let (mut against_references, mut against_truth, mut true_vmis) = (None, None, Vec::new());
+    if let Some(r) = &scene.references {
+        let refs: Vec<_> = r.outer_iter().collect();
+        let peak = r.iter().fold(0.0f32, |a, &v| a.max(v));
+        let mut body = Array3::from_elem(refs[0].dim(), false);
+        for v in &refs {
+            ndarray::Zip::from(&mut body)
+                .and(v)
+                .for_each(|b, &x| *b |= x > 0.01 * peak);
+        }
+        let truth = d.volumes(&refs)?;
+        let truth_vmis = args
+            .kev
+            .iter()
+            .map(|&e| vmi(&basis, &truth, e))
+            .collect::<Result<Vec<_>, _>>()?;
+        against_references = Some(score(&fractions, &vmis, &truth, &truth_vmis, &body)?);
+        if let Some(maps) = &scene.materials {
+            let energies: Vec<f64> = match (lo, hi) {
+                (Some(lo), Some(hi)) if hi > lo => {
+                    (0..=((hi - lo) as usize)).map(|i| lo + i as f64).collect()
+                }
+                _ => (20..=120).map(f64::from).collect(),
+            };
+            let truth = basis_truth(maps, &basis, &energies)?;
             let truth_vmis = args
                 .kev
                 .iter()
-                .map(|&e| vmi(&basis, &truth, e))
+                .map(|&e| true_vmi(maps, e))
                 .collect::<Result<Vec<_>, _>>()?;
-            // The body: voxels where any reference exceeds 1 % of the largest value.
-            let peak = r.iter().fold(0.0f32, |a, &v| a.max(v));
-            let mut body = Array3::from_elem(truth[0].dim(), false);
-            for v in &refs {
-                ndarray::Zip::from(&mut body)
-                    .and(v)
-                    .for_each(|b, &x| *b |= x > 0.01 * peak);
-            }
-            let voxels = body.iter().filter(|&&b| b).count().max(1);
-            let fraction_rmse = fractions
-                .iter()
-                .zip(&truth)
-                .map(|(f, t)| {
-                    let se: f64 =
-                        ndarray::Zip::from(f)
-                            .and(t)
-                            .and(&body)
-                            .fold(0.0, |a, &f, &t, &b| {
-                                a + if b {
-                                    (f as f64 - t as f64).powi(2)
-                                } else {
-                                    0.0
-                                }
-                            });
-                    (se / voxels as f64).sqrt()
-                })
-                .collect();
-            let vmi_psnr = vmis
-                .iter()
-                .zip(&truth_vmis)
-                .map(|(v, t)| {
-                    let peak = t.iter().fold(0.0f32, |a, &x| a.max(x)) as f64;
-                    psnr(v.view(), t.view(), peak)
-                })
-                .collect::<Result<Vec<_>, _>>()?;
-            Some(Scores {
-                voxels,
-                fraction_rmse,
-                vmi_psnr,
-            })
+            let mut s = score(&fractions, &vmis, &truth, &truth_vmis, &body)?;
+            s.energies_kev = Some([energies[0], energies[energies.len() - 1]]);
+            against_truth = Some(s);
+            true_vmis = truth_vmis;
         }
-        None => None,
-    };
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     if std::fs::read_dir(&args.out)?.next().is_some() {
@@ -178,10 +172,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         files.push(write(&args.out, &format!("{}.npy", m.name()), f)?);
     }
     let mut vmi_report = Vec::new();
-    for (&kev, v) in args.kev.iter().zip(&vmis) {
+    for (i, (&kev, v)) in args.kev.iter().zip(&vmis).enumerate() {
         vmi_report.push(Vmi {
             kev,
             file: write(&args.out, &format!("vmi-{kev}keV.npy"), v)?,
+            truth: true_vmis
+                .get(i)
+                .map(|t| write(&args.out, &format!("vmi-{kev}keV.truth.npy"), t))
+                .transpose()?,
             extrapolated: lo.is_none_or(|lo| kev < lo) || hi.is_none_or(|hi| kev > hi),
         });
     }
@@ -201,6 +199,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         noise_gain: d.separability.noise_gain.clone(),
         vmi: vmi_report,
         against_references,
+        against_truth,
     };
     let path = args.out.join("decomposition.json");
     std::fs::write(&path, serde_json::to_string_pretty(&report)?)
@@ -213,15 +212,63 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.out.display(),
         d.separability.condition
     );
-    if let Some(s) = &report.against_references {
-        for (m, r) in report.basis.iter().zip(&s.fraction_rmse) {
-            eprintln!("  {m}: fraction RMSE {r:.3e} against the references' decomposition");
-        }
-        for (k, p) in args.kev.iter().zip(&s.vmi_psnr) {
-            eprintln!("  VMI {k} keV: PSNR {p:.2} dB");
+    for (what, s) in [
+        ("the references' decomposition", &report.against_references),
+        ("the true material fractions", &report.against_truth),
+    ] {
+        if let Some(s) = s {
+            eprintln!("  against {what}:");
+            for (m, r) in report.basis.iter().zip(&s.fraction_rmse) {
+                eprintln!("    {m}: fraction RMSE {r:.3e}");
+            }
+            for (k, p) in args.kev.iter().zip(&s.vmi_psnr) {
+                eprintln!("    VMI {k} keV: PSNR {p:.2} dB");
+            }
         }
     }
     Ok(())
+}
+
+/// Fraction RMSE per basis material inside `body` and VMI PSNR (peak: the truth's maximum).
+fn score(
+    fractions: &[Array3<f32>],
+    vmis: &[Array3<f32>],
+    truth: &[Array3<f32>],
+    truth_vmis: &[Array3<f32>],
+    body: &Array3<bool>,
+) -> anyhow::Result<Scores> {
+    let voxels = body.iter().filter(|&&b| b).count().max(1);
+    let fraction_rmse = fractions
+        .iter()
+        .zip(truth)
+        .map(|(f, t)| {
+            let se = ndarray::Zip::from(f)
+                .and(t)
+                .and(body)
+                .fold(0.0f64, |a, &f, &t, &b| {
+                    a + if b {
+                        (f as f64 - t as f64).powi(2)
+                    } else {
+                        0.0
+                    }
+                });
+            (se / voxels as f64).sqrt()
+        })
+        .collect();
+    let vmi_psnr = vmis
+        .iter()
+        .zip(truth_vmis)
+        .map(|(v, t)| {
+            let peak = t.iter().fold(0.0f32, |a, &x| a.max(x)) as f64;
+            psnr(v.view(), t.view(), peak)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Scores {
+        energies_kev: None,
+        voxels,
+        fraction_rmse,
+        vmi_psnr,
+    })
 }
 
 /// Write `a` as `<dir>/<name>`; the file name.

@@ -77,6 +77,51 @@ impl Basis {
     pub fn mu(&self, kev: f64) -> Result<Vec<f64>> {
         self.materials.iter().map(|m| m.mu(kev)).collect()
     }
+
+    /// The non-negative basis mixture whose attenuation best matches pure `material`'s over
+    /// `energies` (keV; least squares in μ, as [`Decomposition::solve`] fits a voxel): the
+    /// basis-equivalent fractions of a unit fraction of it. A basis material's own equivalent
+    /// is its unit vector. Errors when the energies cannot separate the basis.
+    pub fn equivalent(&self, material: Material, energies: &[f64]) -> Result<Vec<f64>> {
+        let mono: Vec<ChannelSpec> = energies
+            .iter()
+            .map(|&kev| ChannelSpec::Mono { kev })
+            .collect();
+        let d = Decomposition::new(self.clone(), &mono).map_err(|e| e.under("energies"))?;
+        let target: Vec<f64> = energies
+            .iter()
+            .map(|&e| material.mu(e))
+            .collect::<Result<_>>()?;
+        Ok(d.solve(&target))
+    }
+}
+
+/// The scene's true basis fractions: each material's fractions spread over the basis by its
+/// [`Basis::equivalent`] over `energies` (a material outside the basis, e.g. fat against water,
+/// bone and iodine, keeps the part of its attenuation the basis cannot express).
+pub fn basis_truth(
+    maps: &crate::scene::MaterialMaps,
+    basis: &Basis,
+    energies: &[f64],
+) -> Result<Vec<Array3<f32>>> {
+    let (_, z, y, x) = maps.fractions.dim();
+    let mut out = vec![Array3::<f32>::zeros((z, y, x)); basis.materials.len()];
+    for (m, f) in maps.materials.iter().zip(maps.fractions.outer_iter()) {
+        for (o, a) in out.iter_mut().zip(basis.equivalent(*m, energies)?) {
+            o.scaled_add(a as f32, &f);
+        }
+    }
+    Ok(out)
+}
+
+/// The true monoenergetic image at `kev` (mm⁻¹): `Σ_m μ_m(E)·f_m` over the scene's materials.
+pub fn true_vmi(maps: &crate::scene::MaterialMaps, kev: f64) -> Result<Array3<f32>> {
+    let (_, z, y, x) = maps.fractions.dim();
+    let mut out = Array3::<f32>::zeros((z, y, x));
+    for (m, f) in maps.materials.iter().zip(maps.fractions.outer_iter()) {
+        out.scaled_add(m.mu(kev)? as f32, &f);
+    }
+    Ok(out)
 }
 
 /// How well the channels separate the basis (see the module docs).

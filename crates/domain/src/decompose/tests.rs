@@ -159,3 +159,41 @@ fn virtual_monoenergetic_images_follow_the_basis_attenuation() {
     assert!(vmi(&basis, &fractions, 200.0).is_err());
     assert!(vmi(&basis, &fractions[..2], 60.0).is_err());
 }
+
+#[test]
+fn basis_equivalents_are_unit_vectors_for_the_basis_and_close_for_tissues() {
+    let basis = Basis::body();
+    let energies: Vec<f64> = (40..=100).map(f64::from).collect();
+    for (i, m) in basis.materials().iter().enumerate() {
+        let e = basis.equivalent(*m, &energies).unwrap();
+        for (j, v) in e.iter().enumerate() {
+            let want = if i == j { 1.0 } else { 0.0 };
+            assert!((v - want).abs() < 1e-9, "{m:?}: {e:?}");
+        }
+    }
+    // Soft tissue (ICRU-44, 1.06 g/cm³) is water-like: about 1.06 water with little else, and
+    // its equivalent reproduces its attenuation to < 1 % over the fitted range.
+    let e = basis.equivalent(Material::SoftTissue, &energies).unwrap();
+    assert!(
+        (e[0] - 1.06).abs() < 0.1 && e[1].abs() < 0.05 && e[2].abs() < 1e-3,
+        "{e:?}"
+    );
+    for &kev in &energies {
+        let fit: f64 = basis
+            .mu(kev)
+            .unwrap()
+            .iter()
+            .zip(&e)
+            .map(|(m, x)| m * x)
+            .sum();
+        let want = Material::SoftTissue.mu(kev).unwrap();
+        assert!(
+            (fit / want - 1.0).abs() < 0.01,
+            "{kev} keV: {fit} vs {want}"
+        );
+    }
+    assert!(basis.equivalent(Material::Adipose, &[60.0, 80.0]).is_err());
+    // Fat lies outside the cone of water, bone and iodine: its equivalent stays non-negative.
+    let fat = basis.equivalent(Material::Adipose, &energies).unwrap();
+    assert!(fat.iter().all(|&v| v >= 0.0) && fat[0] > 0.8, "{fat:?}");
+}

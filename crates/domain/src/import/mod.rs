@@ -164,6 +164,7 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
             created_by: String::new(),
         },
         structural: None,
+        materials: None,
     };
     scene.validate()?;
     Ok(FullScan { scene, raised })
@@ -341,6 +342,7 @@ impl Scene {
             },
             provenance: self.provenance.clone(),
             structural: self.structural.as_ref().map(|s| s.select(Axis(0), &keep)),
+            materials: self.materials.clone(),
         };
         scene.validate()?;
         Ok(scene)

@@ -27,6 +27,7 @@ const PROJECTIONS: &str = "projections";
 const AVAILABILITY: &str = "availability";
 const REFERENCES: &str = "references";
 const STRUCTURAL: &str = "structural";
+const FRACTIONS: &str = "fractions";
 
 /// The units block: fixed values, written so that a reader never has to guess.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -87,6 +88,9 @@ struct Arrays {
     references: Option<ArrayEntry>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     structural: Option<ArrayEntry>,
+    /// `[material][z][y][x]` volume fractions of a simulated object (names in `materials`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fractions: Option<ArrayEntry>,
 }
 
 /// `scene.yaml`.
@@ -102,6 +106,9 @@ struct SceneFile {
     split: Split,
     #[serde(default)]
     provenance: Provenance,
+    /// The materials of `arrays.fractions`, in its order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    materials: Vec<crate::physics::Material>,
     arrays: Arrays,
 }
 
@@ -155,6 +162,7 @@ impl Scene {
             availability: entry(AVAILABILITY, "bool", self.availability.shape()),
             references: None,
             structural: None,
+            fractions: None,
         };
         write_npy(&dir.join(&arrays.projections.file), &self.projections)?;
         write_npy(&dir.join(&arrays.availability.file), &self.availability)?;
@@ -168,6 +176,11 @@ impl Scene {
             write_npy(&dir.join(&e.file), s)?;
             arrays.structural = Some(e);
         }
+        if let Some(m) = &self.materials {
+            let e = entry(FRACTIONS, "f32", m.fractions.shape());
+            write_npy(&dir.join(&e.file), &m.fractions)?;
+            arrays.fractions = Some(e);
+        }
         let file = SceneFile {
             format_version: FORMAT_VERSION,
             name: self.name.clone(),
@@ -176,6 +189,11 @@ impl Scene {
             channels: self.channels.clone(),
             split: self.split.clone(),
             provenance: self.provenance.clone(),
+            materials: self
+                .materials
+                .as_ref()
+                .map(|m| m.materials.clone())
+                .unwrap_or_default(),
             arrays,
         };
         let path = dir.join(SCENE_FILE);
@@ -237,6 +255,21 @@ impl Scene {
             Some(e) => Some(read_f32(dir, &yaml, STRUCTURAL, e, &[v, rows, cols])?),
             None => None,
         };
+        let m = file.materials.len();
+        let materials = match &a.fractions {
+            Some(e) => Some(super::MaterialMaps {
+                materials: file.materials.clone(),
+                fractions: into_dim(read_f32(dir, &yaml, FRACTIONS, e, &[m, nz, ny, nx])?)?,
+            }),
+            None if m > 0 => {
+                return Err(Error::field(
+                    &yaml,
+                    "materials",
+                    "listed without `arrays.fractions`",
+                ));
+            }
+            None => None,
+        };
         let scene = Scene {
             name: file.name,
             geometry: file.geometry,
@@ -247,6 +280,7 @@ impl Scene {
             split: file.split,
             provenance: file.provenance,
             structural: structural.map(into_dim).transpose()?,
+            materials,
         };
         let at = |entry: &ArrayEntry| dir.join(&entry.file);
         scene
@@ -260,6 +294,9 @@ impl Scene {
         }
         if let Some(e) = &a.structural {
             scene.check_structural().map_err(|err| err.in_file(at(e)))?;
+        }
+        if let Some(e) = &a.fractions {
+            scene.check_materials().map_err(|err| err.in_file(at(e)))?;
         }
         Ok(scene)
     }
@@ -305,6 +342,7 @@ fn owned_files(dir: &Path) -> Result<BTreeSet<OsString>> {
                 Some(a.availability),
                 a.references,
                 a.structural,
+                a.fractions,
             ]
             .into_iter()
             .flatten()
@@ -313,7 +351,7 @@ fn owned_files(dir: &Path) -> Result<BTreeSet<OsString>> {
             }
         }
         None => {
-            for n in [PROJECTIONS, AVAILABILITY, REFERENCES, STRUCTURAL] {
+            for n in [PROJECTIONS, AVAILABILITY, REFERENCES, STRUCTURAL, FRACTIONS] {
                 owned.insert(format!("{n}.npy").into());
             }
         }

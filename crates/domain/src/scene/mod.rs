@@ -288,6 +288,16 @@ pub struct Provenance {
     pub created_by: String,
 }
 
+/// The material volume fractions of a simulated scene's object on its grid: the truth behind
+/// its reference volumes (channel c's is `Σ_m μ̄_m(c)·f_m`), and behind any energy's
+/// monoenergetic image `Σ_m μ_m(E)·f_m`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MaterialMaps {
+    pub materials: Vec<crate::physics::Material>,
+    /// `[material][z][y][x]`: volume fractions at each material's nominal density.
+    pub fractions: Array4<f32>,
+}
+
 /// A spectral CT scan of one object. See the module documentation for the conventions.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Scene {
@@ -306,6 +316,8 @@ pub struct Scene {
     /// An optional measured full-spectrum (all photons) projection, `[view][row][col]`, line
     /// integrals (photon-counting scanners provide it).
     pub structural: Option<Array3<f32>>,
+    /// The object's material fractions, when the scene was simulated.
+    pub materials: Option<MaterialMaps>,
 }
 
 impl Scene {
@@ -390,6 +402,7 @@ impl Scene {
             split: self.split.clone(),
             provenance: self.provenance.clone(),
             structural: self.structural.clone(),
+            materials: self.materials.clone(),
         }
     }
 
@@ -401,7 +414,8 @@ impl Scene {
         self.check_projections()?;
         self.check_availability()?;
         self.check_references()?;
-        self.check_structural()
+        self.check_structural()?;
+        self.check_materials()
     }
 
     /// Geometry, channels (order, τ) and split; nothing that needs the arrays.
@@ -457,6 +471,21 @@ impl Scene {
         check_shape("references", r.shape(), &self.expected_reference_shape())?;
         check_finite("references", r.view().into_dyn(), |i| {
             format!("channel `{}`", self.channels[i[0]].label)
+        })
+    }
+
+    fn check_materials(&self) -> Result<()> {
+        let Some(m) = &self.materials else {
+            return Ok(());
+        };
+        let [_, z, y, x] = self.expected_reference_shape();
+        check_shape(
+            "fractions",
+            m.fractions.shape(),
+            &[m.materials.len(), z, y, x],
+        )?;
+        check_finite("fractions", m.fractions.view().into_dyn(), |i| {
+            format!("material `{}`", m.materials[i[0]].name())
         })
     }
 

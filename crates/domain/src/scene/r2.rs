@@ -203,6 +203,7 @@ impl Scene {
                 ..Provenance::default()
             },
             structural: None,
+            materials: None,
             geometry,
         };
         scene.validate().map_err(|e| e.in_file(&meta_path))?;

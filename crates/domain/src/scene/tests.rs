@@ -64,6 +64,13 @@ fn small_scene() -> Scene {
             overrides: vec!["geometry.views=13".into()],
         },
         structural: Some(structural),
+        materials: Some(MaterialMaps {
+            materials: vec![
+                crate::physics::Material::Water,
+                crate::physics::Material::Iodine,
+            ],
+            fractions: Array4::from_shape_fn((2, 4, 4, 4), |_| rng.random::<f32>()),
+        }),
     }
 }
 

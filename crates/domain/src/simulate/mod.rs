@@ -21,7 +21,9 @@ use crate::phantom::hu::{HuMapping, hu_material_volumes};
 use crate::phantom::{Component, MaterialVolumes, SpectralPhantom};
 use crate::physics::{ChannelSpec, NoiseModel, add_noise};
 use crate::projector::Joseph;
-use crate::scene::{Channel, Provenance, Scene, SpectralCoordinate, Split, normalise_tau};
+use crate::scene::{
+    Channel, MaterialMaps, Provenance, Scene, SpectralCoordinate, Split, normalise_tau,
+};
 use crate::yaml::Overrides;
 use crate::{Error, Result};
 use ndarray::{Array2, Array3, Array4, Axis, s};
@@ -196,8 +198,8 @@ impl SimulateConfig {
             memory::bytes(pixels, 4 * materials),
         );
         f.add(
-            format!("material fractions ({materials} × {n}³)"),
-            memory::bytes(voxels, 4 * materials),
+            format!("material fractions ({materials} × {n}³, and the scene's copy)"),
+            memory::bytes(voxels, 8 * materials),
         );
         if let ObjectSpec::Hu { path, .. } = &self.object {
             // int16 as stored, and as f32.
@@ -520,6 +522,16 @@ fn simulate_unnamed(
         },
         provenance,
         structural,
+        materials: Some(MaterialMaps {
+            materials: materials.fractions.iter().map(|(m, _)| *m).collect(),
+            fractions: stack(
+                &materials
+                    .fractions
+                    .into_iter()
+                    .map(|(_, f)| f)
+                    .collect::<Vec<_>>(),
+            ),
+        }),
     };
     scene.validate()?;
     Ok(scene)

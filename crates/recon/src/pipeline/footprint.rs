@@ -60,6 +60,9 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
     if let Some(r) = &scene.references {
         f.add("the scene: reference volumes", bytes(r.len(), 4));
     }
+    if let Some(m) = &scene.materials {
+        f.add("the scene: material fractions", bytes(m.fractions.len(), 4));
+    }
     f.add(
         format!("output volumes ({channels} × {voxels} voxels)"),
         bytes(voxels, 4 * channels),

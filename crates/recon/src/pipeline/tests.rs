@@ -78,6 +78,7 @@ pub(crate) fn scene() -> Scene {
         },
         provenance: Provenance::default(),
         structural: None,
+        materials: None,
     }
 }
 
