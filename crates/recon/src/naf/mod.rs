@@ -91,7 +91,7 @@ pub fn fit_channel(
     if let Some(saved) = checkpointed.as_mut().and_then(|c| c.start.take()) {
         let file = checkpointed
             .as_ref()
-            .map(|c| c.checkpoints.path().to_path_buf());
+            .map(|c| c.checkpoints.file().path().to_path_buf());
         let file = file.unwrap_or_default();
         if saved.state.channel != task.index || saved.state.label != task.label {
             return Err(Error::field(
@@ -179,8 +179,8 @@ pub fn fit_channel(
             (loss_sum, loss_n) = (0.0, 0);
         }
         if let Some(c) = &mut checkpointed {
-            let stop = c.checkpoints.stop_requested();
-            if stop || c.checkpoints.due(done) {
+            let stop = c.checkpoints.file().stop_requested();
+            if stop || c.checkpoints.file().due(done) {
                 let state = LoopState {
                     channel: task.index,
                     label: task.label.to_string(),
@@ -201,7 +201,7 @@ pub fn fit_channel(
                 return Err(Error::Interrupted {
                     stage: format!("naf {}", task.label),
                     iter: done,
-                    checkpoint: c.checkpoints.path().to_path_buf(),
+                    checkpoint: c.checkpoints.file().path().to_path_buf(),
                 });
             }
         }

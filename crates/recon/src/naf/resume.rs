@@ -18,7 +18,6 @@
 //! `log`.
 
 use crate::gaussian::io::{Tensors, json_meta};
-use crate::train::fingerprint::Fingerprint;
 use crate::train::log::SavedLog;
 use crate::train::resume::{NetState, ResumeFile};
 use crate::{Error, Result};
@@ -28,8 +27,7 @@ use prism_field::NeuralField;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
+use std::path::Path;
 
 const FORMAT: &str = "prism-naf-resume/1";
 
@@ -110,32 +108,17 @@ pub struct NafCheckpoints<'a> {
 }
 
 impl<'a> NafCheckpoints<'a> {
-    /// Save to `path` every `every` iterations (0: only when stopped) and when `stop` is set;
-    /// refuse resume files whose fingerprint differs from `fingerprint`.
-    pub fn new(
-        path: PathBuf,
-        every: usize,
-        fingerprint: Fingerprint,
-        stop: Option<&'a AtomicBool>,
-    ) -> Self {
+    /// Checkpoints saved to and resumed from `file`.
+    pub fn new(file: ResumeFile<'a>) -> Self {
         NafCheckpoints {
-            file: ResumeFile::new(path, every, fingerprint, stop),
+            file,
             written: None,
         }
     }
 
-    pub fn path(&self) -> &Path {
-        self.file.path()
-    }
-
-    /// Whether the run was asked to stop.
-    pub fn stop_requested(&self) -> bool {
-        self.file.stop_requested()
-    }
-
-    /// Whether iteration `it` (1-based) ends with a scheduled checkpoint.
-    pub fn due(&self, it: usize) -> bool {
-        self.file.due(it)
+    /// Where, when and against what the checkpoints are saved.
+    pub fn file(&self) -> &ResumeFile<'a> {
+        &self.file
     }
 
     /// The state saved in the file, for a run of `channels` channels on a `[nz, ny, nx]` grid.
@@ -224,7 +207,7 @@ impl<'a> NafCheckpoints<'a> {
         match self.written {
             Some((c, it)) => format!(
                 "; the last saved state (channel {c}, iteration {it}) is in `{}`",
-                self.path().display()
+                self.file.path().display()
             ),
             None => "; no earlier state was saved (set `checkpoint_every`)".into(),
         }

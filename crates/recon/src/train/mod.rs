@@ -229,7 +229,7 @@ fn train(
             let file = journal
                 .checkpoints
                 .as_ref()
-                .map(|c| c.path().to_path_buf())
+                .map(|c| c.file().path().to_path_buf())
                 .unwrap_or_default();
             trainer.restore(state, &file)?;
             progress
@@ -325,8 +325,8 @@ fn train(
         observer.progress(it as u64, &status);
 
         if let Some(ck) = &mut journal.checkpoints {
-            let stop = ck.stop_requested();
-            if stop || ck.due(it) {
+            let stop = ck.file().stop_requested();
+            if stop || ck.file().due(it) {
                 // Writing a checkpoint is not training time.
                 let saved = journal.log.saved();
                 let log = &mut journal.log;
@@ -336,7 +336,7 @@ fn train(
                 return Err(Error::Interrupted {
                     stage: format!("{} {}", stage.name, stage.channel),
                     iter: it,
-                    checkpoint: ck.path().to_path_buf(),
+                    checkpoint: ck.file().path().to_path_buf(),
                 });
             }
         }

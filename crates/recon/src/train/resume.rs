@@ -115,7 +115,7 @@ impl NetState {
 
 /// Where a run's state is saved, how often, and what a file must match to be resumed from:
 /// the part of [`Checkpoints`] that NAF's (`crate::naf::resume`) shares.
-pub(crate) struct ResumeFile<'a> {
+pub struct ResumeFile<'a> {
     path: PathBuf,
     every: usize,
     fingerprint: Fingerprint,
@@ -139,6 +139,7 @@ impl<'a> ResumeFile<'a> {
         }
     }
 
+    /// Where the checkpoint is written.
     pub fn path(&self) -> &Path {
         &self.path
     }
@@ -154,7 +155,7 @@ impl<'a> ResumeFile<'a> {
     }
 
     /// The file to resume from: it must exist, be of `format` and carry this run's fingerprint.
-    pub fn open(&self, format: &str) -> Result<TensorFile<'_>> {
+    pub(crate) fn open(&self, format: &str) -> Result<TensorFile<'_>> {
         let path = &self.path;
         if !path.is_file() {
             return Err(Error::field(
@@ -179,7 +180,12 @@ impl<'a> ResumeFile<'a> {
     /// Write `tensors` and the JSON metadata `meta` (`format` and `fingerprint` added) beside
     /// the file and rename it over the previous one: a crash while writing keeps the last
     /// complete checkpoint.
-    pub fn write(&self, format: &str, tensors: &Tensors, meta: Vec<(&str, String)>) -> Result<()> {
+    pub(crate) fn write(
+        &self,
+        format: &str,
+        tensors: &Tensors,
+        meta: Vec<(&str, String)>,
+    ) -> Result<()> {
         let path = &self.path;
         let fingerprint = json_meta(path, "fingerprint", &self.fingerprint)?;
         let meta: HashMap<String, String> =
@@ -259,16 +265,10 @@ pub struct Checkpoints<'a> {
 }
 
 impl<'a> Checkpoints<'a> {
-    /// Save to `path` every `every` iterations (0: only when stopped or diverging) and when
-    /// `stop` is set; refuse resume files whose fingerprint differs from `fingerprint`.
-    pub fn new(
-        path: PathBuf,
-        every: usize,
-        fingerprint: Fingerprint,
-        stop: Option<&'a AtomicBool>,
-    ) -> Self {
+    /// Checkpoints saved to and resumed from `file`.
+    pub fn new(file: ResumeFile<'a>) -> Self {
         Checkpoints {
-            file: ResumeFile::new(path, every, fingerprint, stop),
+            file,
             done: Vec::new(),
             resume: None,
             written: None,
@@ -332,19 +332,9 @@ impl<'a> Checkpoints<'a> {
         Ok(self)
     }
 
-    /// Where the checkpoint is written.
-    pub fn path(&self) -> &Path {
-        self.file.path()
-    }
-
-    /// Whether the run was asked to stop.
-    pub fn stop_requested(&self) -> bool {
-        self.file.stop_requested()
-    }
-
-    /// Whether iteration `it` ends with a scheduled checkpoint.
-    pub fn due(&self, it: usize) -> bool {
-        self.file.due(it)
+    /// Where, when and against what the checkpoints are saved.
+    pub fn file(&self) -> &ResumeFile<'a> {
+        &self.file
     }
 
     /// The `index`-th stage of this run, when the resume file finished it: its model (and curve
