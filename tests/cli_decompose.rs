@@ -74,6 +74,31 @@ fn a_runs_volumes_decompose_into_basis_fractions_and_vmis() {
         assert!(out.join(name).is_file(), "{name}");
     }
 
+    // A volume off the scene's grid is refused, naming its file.
+    let bad = dir.path().join("bad-run");
+    std::fs::create_dir(&bad).unwrap();
+    for ch in &scene.channels {
+        ndarray_npy::write_npy(
+            bad.join(format!("{}.npy", ch.label)),
+            &Array3::<f32>::zeros((2, 2, 2)),
+        )
+        .unwrap();
+    }
+    let z = dir.path().join("z");
+    let (ok, t) = prism(&[
+        "decompose",
+        path(&bad),
+        "-s",
+        path(&scene_dir),
+        "-o",
+        path(&z),
+    ]);
+    assert!(
+        !ok && t.contains("40keV.npy") && t.contains("the scene's grid"),
+        "{t}"
+    );
+    assert!(!z.exists(), "nothing is written on refusal");
+
     // A non-empty output directory and an underdetermined basis are refused.
     let (ok, t) = prism(&[
         "decompose",

@@ -83,6 +83,12 @@ struct Scores {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.out.is_dir() && std::fs::read_dir(&args.out)?.next().is_some() {
+        bail!(
+            "-o {}: the directory is not empty (nothing was written)",
+            args.out.display()
+        );
+    }
     let materials = args
         .basis
         .iter()
@@ -100,10 +106,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let d = Decomposition::new(basis.clone(), &specs)
         .map_err(|e| e.in_file(args.scene.join("scene.yaml")))?;
+    let shape = scene.geometry.volume.shape_zyx();
     let volumes = scene
         .channels
         .iter()
-        .map(|ch| read_volume(&args.run_dir.join(RunDir::volume_file(&ch.label))))
+        .map(|ch| read_volume(&args.run_dir.join(RunDir::volume_file(&ch.label)), shape))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let views: Vec<_> = volumes.iter().map(|v| v.view()).collect();
     let fractions = d.volumes(&views)?;
@@ -161,12 +168,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    if std::fs::read_dir(&args.out)?.next().is_some() {
-        bail!(
-            "-o {}: the directory is not empty (nothing was written)",
-            args.out.display()
-        );
-    }
     let mut files = Vec::new();
     for (m, f) in materials.iter().zip(&fractions) {
         files.push(write(&args.out, &format!("{}.npy", m.name()), f)?);
@@ -278,8 +279,22 @@ fn write(dir: &Path, name: &str, a: &Array3<f32>) -> anyhow::Result<String> {
     Ok(name.to_string())
 }
 
-fn read_volume(path: &Path) -> anyhow::Result<Array3<f32>> {
-    ndarray_npy::read_npy(path).with_context(|| format!("reading the volume {}", path.display()))
+/// A run's channel volume, which must lie on the scene's grid (`shape`, `[z][y][x]`) and be
+/// finite.
+fn read_volume(path: &Path, shape: [usize; 3]) -> anyhow::Result<Array3<f32>> {
+    let v: Array3<f32> = ndarray_npy::read_npy(path)
+        .with_context(|| format!("reading the volume {}", path.display()))?;
+    if v.shape() != shape {
+        bail!(
+            "{}: shape {:?}, the scene's grid is {shape:?}",
+            path.display(),
+            v.shape()
+        );
+    }
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        bail!("{}: value {i} (row-major) is not finite", path.display());
+    }
+    Ok(v)
 }
 
 /// The lowest and highest energy of the mono channels (None when there are none).
