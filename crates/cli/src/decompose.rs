@@ -115,9 +115,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let views: Vec<_> = volumes.iter().map(|v| v.view()).collect();
     let fractions = d.volumes(&views)?;
     let (lo, hi) = mono_range(&specs);
+    let outside = |e: f64| lo.is_none_or(|lo| e < lo) || hi.is_none_or(|hi| e > hi);
     for &e in &args.kev {
         prism_domain::physics::attenuation::check_energy(e, "--kev")?;
-        if lo.is_none_or(|lo| e < lo) || hi.is_none_or(|hi| e > hi) {
+        if outside(e) {
             eprintln!(
                 "warning: {e} keV lies outside the channels' energies: its VMI extrapolates the \
                  basis model"
@@ -181,7 +182,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .get(i)
                 .map(|t| write(&args.out, &format!("vmi-{kev}keV.truth.npy"), t))
                 .transpose()?,
-            extrapolated: lo.is_none_or(|lo| kev < lo) || hi.is_none_or(|hi| kev > hi),
+            extrapolated: outside(kev),
         });
     }
     let report = Report {

@@ -250,12 +250,19 @@ impl Decomposition {
     /// come out non-negative (exact for this small a basis: the optimum is the unconstrained
     /// solution on its own support). A voxel of air (or all channels ≤ 0) gives zeros.
     pub fn solve(&self, mu: &[f64]) -> Vec<f64> {
-        let b = self.basis.materials.len();
-        let mut best = vec![0.0; b];
+        let mut out = vec![0.0; self.basis.materials.len()];
+        self.solve_into(mu, &mut out);
+        out
+    }
+
+    /// [`Decomposition::solve`] into `out` (one entry per basis material), without allocating.
+    fn solve_into(&self, mu: &[f64], out: &mut [f64]) {
+        let b = out.len();
+        out.fill(0.0);
         let mut best_r = mu.iter().map(|v| v * v).sum::<f64>();
-        let mut x = vec![0.0; b];
+        let mut x = [0.0; MAX_BASIS];
         for s in &self.subsets {
-            x.iter_mut().for_each(|v| *v = 0.0);
+            x.fill(0.0);
             let mut feasible = true;
             for (row, &col) in s.pinv.iter().zip(&s.members) {
                 let v: f64 = row.iter().zip(mu).map(|(p, m)| p * m).sum();
@@ -273,10 +280,9 @@ impl Decomposition {
                 .sum();
             if r < best_r {
                 best_r = r;
-                best.copy_from_slice(&x);
+                out.copy_from_slice(&x[..b]);
             }
         }
-        best
     }
 
     /// Fraction volumes (one per basis material, `[z][y][x]`) from one volume per channel
@@ -302,19 +308,27 @@ impl Decomposition {
                 ),
             ));
         }
-        let flat: Vec<Vec<f32>> = channels
+        // Borrowed when already in standard layout (a run's volumes are).
+        let flat: Vec<_> = channels.iter().map(|v| v.as_standard_layout()).collect();
+        let flat: Vec<&[f32]> = flat
             .iter()
-            .map(|v| v.iter().copied().collect())
+            .map(|v| v.as_slice().expect("standard layout"))
             .collect();
         let b = self.basis.materials.len();
         let n = flat[0].len();
         let mut out = vec![0.0f32; n * b];
-        out.par_chunks_mut(b).enumerate().for_each(|(i, o)| {
-            let mu: Vec<f64> = flat.iter().map(|v| v[i] as f64).collect();
-            for (o, x) in o.iter_mut().zip(self.solve(&mu)) {
-                *o = x as f32;
-            }
-        });
+        out.par_chunks_mut(b).enumerate().for_each_init(
+            || (vec![0.0; flat.len()], [0.0; MAX_BASIS]),
+            |(mu, x), (i, o)| {
+                for (m, v) in mu.iter_mut().zip(&flat) {
+                    *m = v[i] as f64;
+                }
+                self.solve_into(mu, &mut x[..b]);
+                for (o, x) in o.iter_mut().zip(x.iter()) {
+                    *o = *x as f32;
+                }
+            },
+        );
         Ok((0..b)
             .map(|k| {
                 let v: Vec<f32> = out.iter().skip(k).step_by(b).copied().collect();

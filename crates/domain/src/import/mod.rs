@@ -248,13 +248,8 @@ pub fn footprint(config: &ImportConfig, base: &Path) -> Result<Footprint> {
             memory::bytes(voxels, 8 * m),
         );
     }
-    let kept = match (config.select.views, config.select.every) {
-        (Some(k), _) => k.min(views),
-        (None, Some(e)) => views.div_ceil(e.max(1)),
-        (None, None) => views,
-    }
-    .saturating_add(config.select.test_views)
-    .min(views);
+    let (train, test) = config.pick_views(views)?;
+    let kept = train.len() + test.len();
     f.add(
         format!("the scene's {kept} selected views"),
         memory::bytes(kept * rows * cols, 4 * m),

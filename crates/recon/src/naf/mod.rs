@@ -88,11 +88,10 @@ pub fn fit_channel(
     let (s, nv) = (config.samples_per_ray, rays.views.len());
     let (mut loss_sum, mut loss_n) = (0.0f64, 0usize);
     let mut first = 0;
-    if let Some(saved) = checkpointed.as_mut().and_then(|c| c.start.take()) {
-        let file = checkpointed
-            .as_ref()
-            .map(|c| c.checkpoints.file().path().to_path_buf());
-        let file = file.unwrap_or_default();
+    if let Some(c) = checkpointed.as_mut()
+        && let Some(saved) = c.start.take()
+    {
+        let file = c.checkpoints.file().path().to_path_buf();
         if saved.state.channel != task.index || saved.state.label != task.label {
             return Err(Error::field(
                 &file,

@@ -15,7 +15,6 @@ use crate::stage1::{SharedGeometry, train_shared_geometry};
 use crate::stage2::{Spectral, train_spectral};
 use crate::train::data::image;
 use crate::train::fingerprint::Fingerprint;
-use crate::train::resume::ResumeFile;
 use crate::train::{Checkpoints, Journal, RunLog, Stage, StageReport, Supervision};
 use crate::{Error, Result};
 use burn::tensor::Device;
@@ -147,12 +146,7 @@ fn checkpoints<'a>(
     };
     let from_geometry = serde_json::Value::Bool(options.from_geometry.is_some());
     let fingerprint = Fingerprint::new(config, scene, &[], &[("from_geometry", from_geometry)])?;
-    let checkpoints = Checkpoints::new(ResumeFile::new(
-        c.path.clone(),
-        config.checkpoint_every,
-        fingerprint,
-        c.stop,
-    ));
+    let checkpoints = Checkpoints::new(c.file(config.checkpoint_every, fingerprint));
     if c.resume {
         checkpoints.resume_from_file().map(Some)
     } else {

@@ -7,7 +7,6 @@ use crate::evaluate::{Metrics, Reconstruction, TestProjector, metrics};
 use crate::naf::{ChannelTask, Checkpointed, NafCheckpoints, NafConfig, fit_channel};
 use crate::train::fingerprint::Fingerprint;
 use crate::train::log::RunLog;
-use crate::train::resume::ResumeFile;
 use ndarray::Axis;
 use prism_domain::scene::Scene;
 
@@ -28,15 +27,10 @@ pub(super) fn run(
     let mut checkpoints = match &options.checkpoint {
         Some(c) => {
             let fingerprint = Fingerprint::new(config, scene, &[], &[])?;
-            let ck = NafCheckpoints::new(ResumeFile::new(
-                c.path.clone(),
-                config.checkpoint_every,
-                fingerprint,
-                c.stop,
-            ));
+            let ck = NafCheckpoints::new(c.file(config.checkpoint_every, fingerprint));
             if c.resume {
-                let g = &scene.geometry.volume;
-                let saved = ck.read(scene.channels.len(), [g.nz, g.ny, g.nx])?;
+                let shape = scene.geometry.volume.shape_zyx();
+                let saved = ck.read(scene.channels.len(), shape)?;
                 log.restore(&saved.log)?;
                 for (v, ch) in saved.finished.iter().zip(&scene.channels) {
                     dir.write_volume(&ch.label, v)?;

@@ -3,6 +3,8 @@
 
 use super::run_dir::RunDir;
 use crate::evaluate::{Evaluation, Metrics};
+use crate::train::fingerprint::Fingerprint;
+use crate::train::resume::ResumeFile;
 use crate::{Error, MethodConfig, Result};
 use burn::tensor::Device;
 use prism_domain::observe::{Level, Observer};
@@ -35,6 +37,13 @@ pub struct Checkpointing<'a> {
     /// Continue the run saved in `path`.
     pub resume: bool,
     pub stop: Option<&'a AtomicBool>,
+}
+
+impl<'a> Checkpointing<'a> {
+    /// The resume file of a run with `fingerprint`, saved every `every` iterations.
+    pub fn file(&self, every: usize, fingerprint: Fingerprint) -> ResumeFile<'a> {
+        ResumeFile::new(self.path.clone(), every, fingerprint, self.stop)
+    }
 }
 
 impl RunOptions<'_> {
