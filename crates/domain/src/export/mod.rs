@@ -171,7 +171,7 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
 
 /// Read a `[z][y][x]` f32 volume from a `.npy` file (errors name the file).
 pub fn read_volume_npy(path: &Path) -> Result<ndarray::Array3<f32>> {
-    crate::scene::io::read_npy_f32(path, "volume")?
+    crate::scene::npy::read_npy_f32(path, "volume")?
         .into_dimensionality()
         .map_err(|_| Error::field(path, "volume", "expected a 3-D array [z][y][x]"))
 }

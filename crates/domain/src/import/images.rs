@@ -31,7 +31,7 @@ fn read_file(path: &Path, raw: Option<&RawLayout>) -> Result<Array3<f32>> {
     let a = match raw {
         Some(layout) => read_raw(path, layout)?,
         None => match extension(path).as_str() {
-            "npy" => crate::scene::io::read_npy_any(path, "images")?,
+            "npy" => crate::scene::npy::read_npy_any(path, "images")?,
             "tif" | "tiff" => read_tiff(path)?.into_dyn(),
             other => {
                 return Err(Error::field(

@@ -267,7 +267,7 @@ fn mean_image(source: &config::ImageSource, base: &Path, field: &str) -> Result<
 /// Angles from a `.npy` (any numeric type) or a text file of one value per line (`#` comments).
 fn read_angles(path: &Path) -> Result<Vec<f64>> {
     if path.extension().is_some_and(|e| e == "npy") {
-        let a = crate::scene::io::read_npy_any(path, "angles")?;
+        let a = crate::scene::npy::read_npy_any(path, "angles")?;
         return Ok(a.iter().map(|&v| v as f64).collect());
     }
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;

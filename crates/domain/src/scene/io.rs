@@ -5,17 +5,18 @@
 //! its arrays) are replaced, anything else in its directory is kept. Loading validates
 //! everything, and every error names the file and the field.
 
+use super::npy::{npy_error, read_npy, read_npy_f32};
 use super::{Channel, Provenance, Scene, Split, check_metadata};
 use crate::geometry::Geometry;
 use crate::staged::Staged;
 use crate::{Error, Result};
 use ndarray::{ArrayD, Dimension};
-use ndarray_npy::{ReadNpyError, ReadNpyExt, ReadableElement, WriteNpyExt};
+use ndarray_npy::{ReadNpyError, WriteNpyExt};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
 use std::ffi::OsString;
 use std::fs;
-use std::io::{BufReader, BufWriter};
+use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
 /// Name of the metadata file inside a scene directory.
@@ -386,118 +387,6 @@ fn array_path(dir: &Path, yaml: &Path, key: &str, entry: &ArrayEntry) -> Result<
         ));
     }
     Ok(path)
-}
-
-/// What an `.npy` read failed on, as a field error of `path`.
-fn npy_error(path: &Path, key: &str, want: &str, e: ReadNpyError) -> Error {
-    let msg = match e {
-        ReadNpyError::WrongDescriptor(found) => {
-            format!("wrong dtype: expected {want}, found {found}")
-        }
-        other => format!("not a readable {want} .npy array: {other}"),
-    };
-    Error::field(path, key, msg)
-}
-
-/// Read a `.npy` of any shape and any common numeric type (f32, f64, u8, u16, u32, i16, i32)
-/// as f32; errors name `path` and `field`.
-pub(crate) fn read_npy_any(path: &Path, field: &str) -> Result<ArrayD<f32>> {
-    fn widen<T: ReadableElement + Copy>(
-        path: &Path,
-        f: impl Fn(T) -> f32,
-    ) -> std::result::Result<ArrayD<f32>, ReadNpyError> {
-        read_npy::<T>(path).map(|a| a.mapv(f))
-    }
-    type Attempt = fn(&Path) -> std::result::Result<ArrayD<f32>, ReadNpyError>;
-    let attempts: [Attempt; 7] = [
-        |p| read_npy::<f32>(p),
-        |p| widen::<f64>(p, |x| x as f32),
-        |p| widen::<u16>(p, f32::from),
-        |p| widen::<u8>(p, f32::from),
-        |p| widen::<i16>(p, f32::from),
-        |p| widen::<u32>(p, |x| x as f32),
-        |p| widen::<i32>(p, |x| x as f32),
-    ];
-    let want = "f32, f64, u8, u16, u32, i16 or i32";
-    for attempt in attempts {
-        match attempt(path) {
-            Err(ReadNpyError::WrongDescriptor(_)) => continue,
-            other => return other.map_err(|e| npy_error(path, field, want, e)),
-        }
-    }
-    Err(Error::field(path, field, format!("not a {want} array")))
-}
-
-/// Read an f32 `.npy` of any shape; errors name `path` and `field` (and the dtype found).
-pub(crate) fn read_npy_f32(path: &Path, field: &str) -> Result<ArrayD<f32>> {
-    read_npy::<f32>(path).map_err(|e| npy_error(path, field, "f32 ('<f4')", e))
-}
-
-fn read_npy<T: ReadableElement>(path: &Path) -> std::result::Result<ArrayD<T>, ReadNpyError> {
-    let mut f = fs::File::open(path).map_err(ReadNpyError::Io)?;
-    check_npy_size(&mut f).map_err(ReadNpyError::Io)?;
-    ArrayD::<T>::read_npy(BufReader::new(f))
-}
-
-/// Refuse a `.npy` whose header declares more data than the file holds before anything is
-/// allocated for it (ndarray-npy allocates the declared size, so a 200-byte file claiming
-/// terabytes would abort the process). Headers this cannot parse are left to ndarray-npy's
-/// own errors. Leaves the file at its start.
-fn check_npy_size(f: &mut fs::File) -> std::io::Result<()> {
-    use std::io::{Read, Seek, SeekFrom};
-    let bad = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidData, m);
-    let file_len = f.metadata()?.len();
-    let mut pre = [0u8; 12];
-    if file_len < 12 || f.read_exact(&mut pre).is_err() || &pre[..6] != b"\x93NUMPY" {
-        return f.seek(SeekFrom::Start(0)).map(|_| ());
-    }
-    let (header_len, prefix) = if pre[6] == 1 {
-        (u64::from(u16::from_le_bytes([pre[8], pre[9]])), 10)
-    } else {
-        (
-            u64::from(u32::from_le_bytes([pre[8], pre[9], pre[10], pre[11]])),
-            12,
-        )
-    };
-    const MAX_HEADER: u64 = 1 << 20;
-    if header_len > MAX_HEADER || prefix + header_len > file_len {
-        return Err(bad(format!(
-            "its header claims {header_len} bytes; the file has {file_len}"
-        )));
-    }
-    let mut header = vec![0u8; header_len as usize];
-    f.seek(SeekFrom::Start(prefix))?;
-    f.read_exact(&mut header)?;
-    f.seek(SeekFrom::Start(0))?;
-    let text = String::from_utf8_lossy(&header);
-    let after = |key: &str| text.find(key).map(|i| &text[i + key.len()..]);
-    let descr = after("'descr':").and_then(|t| t.split('\'').nth(1));
-    let shape = after("'shape':").and_then(|t| {
-        let t = &t[t.find('(')? + 1..];
-        let inner = &t[..t.find(')')?];
-        inner
-            .split(',')
-            .map(str::trim)
-            .filter(|s| !s.is_empty())
-            .map(|s| s.parse::<u64>().ok())
-            .collect::<Option<Vec<u64>>>()
-    });
-    let (Some(descr), Some(shape)) = (descr, shape) else {
-        return Ok(());
-    };
-    let digits: String = descr.chars().skip_while(|c| !c.is_ascii_digit()).collect();
-    let Ok(item) = digits.parse::<u64>() else {
-        return Ok(());
-    };
-    let data = shape.iter().try_fold(item, |a, &n| a.checked_mul(n));
-    let held = file_len - prefix - header_len;
-    match data {
-        Some(bytes) if bytes <= held => Ok(()),
-        _ => Err(bad(format!(
-            "its header declares shape {shape:?} of {descr} ({} bytes of data); the file holds {held} after its header",
-            data.map_or("more than 2⁶⁴".to_string(), |b| b.to_string()),
-        ))),
-    }
 }
 
 /// Check a declared shape (in `scene.yaml`) or a file's shape against the one the metadata

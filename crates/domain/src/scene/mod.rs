@@ -12,6 +12,7 @@
 //!   [`SpectralCoordinate::value`]) and carry τ ∈ [0, 1], the coordinate normalised over the scene.
 
 pub(crate) mod io;
+pub(crate) mod npy;
 mod r2;
 mod summary;
 

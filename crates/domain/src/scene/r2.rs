@@ -11,7 +11,7 @@
 //! R²-Gaussian's normalised world (scale 2 / max(sVoxel)) is the trainer's business, not the
 //! loader's.
 
-use super::io::read_npy_f32;
+use super::npy::read_npy_f32;
 use super::{Channel, Provenance, Scene, SpectralCoordinate, Split, check_finite};
 use crate::geometry::R2Scanner;
 use crate::{Error, Result};

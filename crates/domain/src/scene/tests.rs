@@ -616,7 +616,7 @@ fn npy_headers_claiming_more_than_the_file_holds_are_refused_before_allocation()
     let dir = tempfile::tempdir().unwrap();
     let honest = dir.path().join("honest.npy");
     write_npy(&honest, &Array3::<f32>::from_elem((2, 3, 4), 1.5)).unwrap();
-    let a = io::read_npy_f32(&honest, "volume").unwrap();
+    let a = npy::read_npy_f32(&honest, "volume").unwrap();
     assert_eq!(a.shape(), [2, 3, 4]);
     // A version-1 header declaring a 4 PB array, followed by 96 bytes of data.
     let mut dict =
@@ -631,7 +631,7 @@ fn npy_headers_claiming_more_than_the_file_holds_are_refused_before_allocation()
     forged.extend([0u8; 96]);
     let path = dir.path().join("forged.npy");
     fs::write(&path, &forged).unwrap();
-    let e = io::read_npy_f32(&path, "volume").unwrap_err().to_string();
+    let e = npy::read_npy_f32(&path, "volume").unwrap_err().to_string();
     assert!(
         e.contains("forged.npy") && e.contains("[99999, 99999, 99999]") && e.contains("96"),
         "{e}"
