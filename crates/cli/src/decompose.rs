@@ -1,6 +1,9 @@
-//! `prism decompose <run_dir> -s <scene_dir> -o <out_dir> [--basis …] [--kev …]`: basis-material
-//! fractions and virtual monoenergetic images from a run's channel volumes (the image-domain
-//! step of a two-step decomposition; see `prism_domain::decompose`).
+//! `prism decompose <run_dir> -s <scene_dir> -o <out_dir> [--basis …] [--kev …] [--image-domain]`:
+//! basis-material fractions and virtual monoenergetic images of a run. A run trained with the
+//! basis head (`stage2.basis`) has them in its Gaussians (`basis.safetensors`), which are
+//! voxelized; any other run (or `--image-domain`, or another `--basis`) is decomposed from its
+//! channel volumes (the image-domain step of a two-step decomposition; see
+//! `prism_domain::decompose`).
 
 use anyhow::{Context, bail};
 use ndarray::Array3;
@@ -8,7 +11,9 @@ use prism_domain::decompose::{Basis, Decomposition, basis_truth, channel_specs, 
 use prism_domain::metrics::psnr::psnr;
 use prism_domain::physics::{ChannelSpec, Material};
 use prism_domain::scene::Scene;
+use prism_recon::gaussian::cpu_device;
 use prism_recon::pipeline::RunDir;
+use prism_recon::query::BasisModel;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -23,13 +28,13 @@ pub struct Args {
     /// Output directory (created; must not exist or be empty).
     #[arg(short = 'o', long = "out")]
     out: PathBuf,
-    /// Basis materials, comma-separated (1 to 4 of the attenuation table's).
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "water,cortical_bone,iodine"
-    )]
-    basis: Vec<String>,
+    /// Basis materials, comma-separated (1 to 4 of the attenuation table's); default: a basis
+    /// run's own, else water,cortical_bone,iodine.
+    #[arg(long, value_delimiter = ',')]
+    basis: Option<Vec<String>>,
+    /// Decompose the channel volumes even when the run carries basis Gaussians.
+    #[arg(long)]
+    image_domain: bool,
     /// Energies (keV, 10–150) of virtual monoenergetic images to write, comma-separated.
     #[arg(long, value_delimiter = ',')]
     kev: Vec<f64>,
@@ -39,6 +44,9 @@ pub struct Args {
 #[derive(Serialize)]
 struct Report {
     run_dir: String,
+    /// Where the fractions come from: `gaussians` (the run's basis head) or `image` (NNLS of
+    /// the channel volumes, voxel by voxel).
+    source: &'static str,
     basis: Vec<&'static str>,
     /// The fraction files: volume fraction of each basis material at its nominal density.
     fractions: Vec<String>,
@@ -89,12 +97,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.out.display()
         );
     }
-    let materials = args
-        .basis
-        .iter()
-        .map(|n| Material::from_name(n.trim()))
-        .collect::<Result<Vec<_>, _>>()?;
+    let run_basis = BasisModel::open(&args.run_dir, &cpu_device())?;
+    let materials = match (&args.basis, &run_basis) {
+        (Some(names), _) => names
+            .iter()
+            .map(|n| Material::from_name(n.trim()))
+            .collect::<Result<Vec<_>, _>>()?,
+        (None, Some(b)) => b.meta.materials.clone(),
+        (None, None) => Basis::body().materials().to_vec(),
+    };
     let basis = Basis::new(&materials)?;
+    let gaussian = run_basis.filter(|b| !args.image_domain && b.meta.materials == materials);
     let scene = Scene::load(&args.scene)?;
     let (specs, exact) = channel_specs(&scene)?;
     if !exact {
@@ -107,13 +120,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let d = Decomposition::new(basis.clone(), &specs)
         .map_err(|e| e.in_file(args.scene.join("scene.yaml")))?;
     let shape = scene.geometry.volume.shape_zyx();
-    let volumes = scene
-        .channels
-        .iter()
-        .map(|ch| read_volume(&args.run_dir.join(RunDir::volume_file(&ch.label)), shape))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let views: Vec<_> = volumes.iter().map(|v| v.view()).collect();
-    let fractions = d.volumes(&views)?;
+    let fractions = match &gaussian {
+        Some(b) => {
+            let f = b.fractions()?;
+            if f[0].shape() != shape {
+                bail!(
+                    "{}: the run's grid {:?} is not the scene's {shape:?}",
+                    args.run_dir.display(),
+                    f[0].shape()
+                );
+            }
+            f
+        }
+        None => {
+            let volumes = scene
+                .channels
+                .iter()
+                .map(|ch| read_volume(&args.run_dir.join(RunDir::volume_file(&ch.label)), shape))
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let views: Vec<_> = volumes.iter().map(|v| v.view()).collect();
+            d.volumes(&views)?
+        }
+    };
     let (lo, hi) = mono_range(&specs);
     let outside = |e: f64| lo.is_none_or(|lo| e < lo) || hi.is_none_or(|hi| e > hi);
     for &e in &args.kev {
@@ -187,6 +215,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let report = Report {
         run_dir: args.run_dir.display().to_string(),
+        source: if gaussian.is_some() {
+            "gaussians"
+        } else {
+            "image"
+        },
         basis: materials.iter().map(|m| m.name()).collect(),
         fractions: files,
         channels: scene
@@ -207,9 +240,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::write(&path, serde_json::to_string_pretty(&report)?)
         .with_context(|| format!("writing {}", path.display()))?;
     eprintln!(
-        "{} basis fractions ({}) and {} VMI(s) → {} (condition number {:.1})",
+        "{} basis fractions ({}, from the {}) and {} VMI(s) → {} (condition number {:.1})",
         materials.len(),
         report.basis.join(", "),
+        if gaussian.is_some() {
+            "run's basis Gaussians"
+        } else {
+            "channel volumes"
+        },
         args.kev.len(),
         args.out.display(),
         d.separability.condition

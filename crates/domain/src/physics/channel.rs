@@ -169,6 +169,55 @@ impl ChannelSpec {
         Ok(self.compile()?.coefficients()[material as usize])
     }
 
+    /// The energy the channel is centred on, keV: its energy (mono), its spectrum's
+    /// fluence-weighted mean (polychromatic, window) or the λ-blend of the two tubes' means
+    /// (mixed). Used to say whether an energy lies among the observed channels.
+    pub fn mean_kev(&self) -> Result<f64> {
+        Ok(match *self {
+            ChannelSpec::Mono { kev } => kev,
+            ChannelSpec::Mixed {
+                lambda,
+                low_kvp,
+                high_kvp,
+                filtration,
+            } => {
+                let low = tube_for_field(low_kvp, filtration, "low_kvp")?.mean_energy();
+                let high = tube_for_field(high_kvp, filtration, "high_kvp")?.mean_energy();
+                lambda * low + (1.0 - lambda) * high
+            }
+            _ => self
+                .spectrum()?
+                .expect("spectral channel has a spectrum")
+                .mean_energy(),
+        })
+    }
+
+    /// This channel's forward model restricted to `materials`: quadrature nodes `(weight,
+    /// μ per material in mm⁻¹)` with `p = −ln Σ_n w_n·exp(−Σ_j μ_nj·L_j)` (weights sum to 1).
+    /// A linear channel (`mono`, `mixed`) is one node of weight 1, so p = Σ_j μ_j·L_j exactly;
+    /// a spectral one (`polychromatic`, `window`) has the nodes [`ChannelSpec::project`] sums
+    /// over. This is how a model that carries material path lengths reproduces the synthesis.
+    pub fn nodes(&self, materials: &[Material]) -> Result<Vec<(f64, Vec<f64>)>> {
+        Ok(match self.compile()? {
+            Compiled::Linear { coef } => {
+                vec![(1.0, materials.iter().map(|&m| coef[m as usize]).collect())]
+            }
+            Compiled::Spectral { weights, mu, .. } => {
+                let total: f64 = weights.iter().sum();
+                weights
+                    .iter()
+                    .enumerate()
+                    .map(|(e, w)| {
+                        (
+                            w / total,
+                            materials.iter().map(|&m| mu[m as usize][e]).collect(),
+                        )
+                    })
+                    .collect()
+            }
+        })
+    }
+
     fn compile(&self) -> Result<Compiled> {
         match *self {
             ChannelSpec::Mono { kev } => {

@@ -48,6 +48,10 @@ pub struct ModelInfo {
     /// written before the setting existed, which were all trained with the default).
     #[serde(default)]
     pub projection: ProjectionConfig,
+    /// Every channel is monoenergetic (its coordinate is its photon energy), so a coordinate is
+    /// an energy (false in files written before the field existed).
+    #[serde(default)]
+    pub monoenergetic: bool,
 }
 
 impl ModelInfo {
@@ -71,6 +75,12 @@ impl ModelInfo {
             coordinate_range: [lo, hi],
             geometry: observed.geometry.clone(),
             projection,
+            monoenergetic: full.channels.iter().all(|c| {
+                matches!(
+                    c.coordinate,
+                    prism_domain::scene::SpectralCoordinate::Energy { .. }
+                )
+            }),
         }
     }
 

@@ -275,6 +275,9 @@ pub(super) fn spectral(
         &s.world,
         &info.channels,
     )?;
+    if let Some(head) = &s.basis {
+        crate::query::basis::save_basis(&dir.file(crate::query::BASIS_FILE), head, &s.model)?;
+    }
     let v = volumes_with(&s.model, s.raw.clone(), &scene.geometry.volume, &s.world)?;
     let observed = (0..m)
         .map(|c| v.index_axis(Axis(0), c).to_owned())

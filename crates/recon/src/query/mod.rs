@@ -4,8 +4,10 @@
 //! interpolating Δu, since u⁽ᶜ⁾ does not depend on τ), then voxelize or render. No optimisation.
 //! Outside the observed grid the query is refused unless extrapolation is asked for.
 
+pub mod basis;
 pub mod holdout;
 
+pub use basis::{BASIS_FILE, BasisModel};
 pub use holdout::{Holdout, HoldoutScore, predict_holdout};
 
 use crate::gaussian::World;

@@ -8,6 +8,13 @@
 //! stage-1 raw densities, scaled by half their 10–90 % range) and b a learnable per-channel
 //! baseline started from the channels' mean attenuation ratios, so stage 2 does not start with
 //! every channel at the channel-mean density.
+//!
+//! With `stage2.basis` the spectral head is the basis-material model instead ([`basis`]): the
+//! Gaussians carry one density per basis material and the channels are formed by the physics.
+
+pub mod basis;
+
+pub use basis::BasisHead;
 
 use crate::Result;
 use crate::evaluate::Evaluator;
@@ -19,16 +26,19 @@ use crate::train::{CurveFit, Journal, Stage, Supervision};
 use burn::optim::AdamConfig;
 use burn::tensor::{Device, Tensor};
 use ndarray::Axis;
+use prism_domain::decompose::channel_specs;
 use prism_domain::observe::Level;
 use prism_domain::scene::Scene;
 use prism_gscnet::SpectralGrid;
 
 /// The spectral stage's result: the model (geometry and, with a curve model, the common raw
-/// density) and its raw densities per observed channel `[K, M]`.
+/// density; with the basis head, the raw basis densities `[K, B]`), its raw densities per observed
+/// channel `[K, M]` and, with the basis head, the head.
 pub struct Spectral {
     pub model: GaussianModel,
     pub raw: Tensor<2>,
     pub world: World,
+    pub basis: Option<BasisHead>,
 }
 
 /// Train the spectral stage of `config` on `scene` (its observed channels) from `shared`.
@@ -74,8 +84,36 @@ pub fn train_spectral(
             .collect(),
     });
     let ratios = channel_ratios(scene, &sviews);
-    let raw = match config.method {
-        GaussianMethod::FourDsg if m >= 2 => {
+    let mut head = None;
+    let raw = match (config.method, &config.stage2.basis) {
+        (GaussianMethod::FourDsg, Some(cfg)) => {
+            let (specs, exact) = channel_specs(scene)?;
+            if !exact {
+                journal.observer.note(
+                    Level::Warning,
+                    "the scene does not record its channels' spectra: the basis head assumes the \
+                     default filtration for tube-voltage and mixed channels",
+                );
+            }
+            let h = BasisHead::new(cfg, &specs, &world, &device.clone().autodiff())?;
+            let start = h.initial_raw(&model.to_host().densities, cfg.init_share);
+            let b = cfg.materials.len();
+            model.set_densities(upload(start, b, device));
+            let s2 = &config.stage2;
+            let stage = Stage {
+                iterations: s2.iterations,
+                learn: s2.freeze.learnable(),
+                densify: None,
+                seed: config.seed.wrapping_add(1),
+                basis: Some(&h),
+                ..Stage::geometry(config, "basis", "all", &geometry.volume, &world)
+            };
+            journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
+            let raw = h.channel_raw(&model);
+            head = Some(h);
+            raw
+        }
+        (GaussianMethod::FourDsg, None) if m >= 2 => {
             let s2 = &config.stage2;
             let tau: Vec<f32> = scene.channels.iter().map(|c| c.tau as f32).collect();
             let grid = SpectralGrid::new(tau)?;
@@ -141,7 +179,12 @@ pub fn train_spectral(
             model.densities.value.clone()
         }
     };
-    Ok(Spectral { model, raw, world })
+    Ok(Spectral {
+        model,
+        raw,
+        world,
+        basis: head,
+    })
 }
 
 /// The finite values of `v`, ascending.

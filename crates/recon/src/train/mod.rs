@@ -193,11 +193,12 @@ impl Schedule<'_> {
     }
 }
 
-/// The score of a model in training (through its curve model in stage 2).
-fn score(e: &Evaluator, t: &Trainer) -> Result<(f64, f64)> {
-    match t.curve() {
-        Some(c) => e.score_raw(t.model(), c.raw_densities(t.model())?),
-        None => e.score(t.model()),
+/// The score of a model in training (through its curve model or basis head in stage 2).
+fn score(e: &Evaluator, t: &Trainer, stage: &Stage) -> Result<(f64, f64)> {
+    match (t.curve(), stage.basis) {
+        (Some(c), _) => e.score_raw(t.model(), c.raw_densities(t.model())?),
+        (None, Some(h)) => e.score_raw(t.model(), h.channel_raw(t.model())),
+        (None, None) => e.score(t.model()),
     }
 }
 
@@ -289,7 +290,7 @@ fn train(
         if due {
             let log = &mut journal.log;
             let score = match eval {
-                Some(e) => Some(log.evaluating(|| score(e, &trainer))?),
+                Some(e) => Some(log.evaluating(|| score(e, &trainer, stage))?),
                 None => None,
             };
             if score.is_some() {

@@ -4,6 +4,7 @@
 use crate::Result;
 use crate::gaussian::config::{DensifyConfig, GaussianConfig, LearningRates, LossConfig};
 use crate::gaussian::{Learnable, World};
+use crate::stage2::BasisHead;
 use prism_domain::geometry::VolumeGrid;
 use prism_render::ProjectOptions;
 
@@ -26,6 +27,9 @@ pub struct Stage<'a> {
     pub grid: &'a VolumeGrid,
     pub world: &'a World,
     pub seed: u64,
+    /// The basis-material head (4D-SG stage 2 with `stage2.basis`): the model's density columns
+    /// are basis materials and the head forms the supervised channels from their projections.
+    pub basis: Option<&'a BasisHead>,
 }
 
 impl<'a> Stage<'a> {
@@ -51,6 +55,7 @@ impl<'a> Stage<'a> {
             grid,
             world,
             seed: config.seed,
+            basis: None,
         }
     }
 

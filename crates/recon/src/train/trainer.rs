@@ -113,11 +113,12 @@ impl<'a> Trainer<'a> {
         let Some(first) = sup.views.first() else {
             return Err(Error::invalid("views", "no training view to fit"));
         };
-        let columns = match &curve {
-            Some(c) => c.net.channels(),
-            None => model.channels(),
+        let (columns, needs) = match (&curve, stage.basis) {
+            (Some(c), _) => (c.net.channels(), 1),
+            (None, Some(h)) => (h.channels(), h.basis().materials().len()),
+            (None, None) => (model.channels(), model.channels()),
         };
-        if columns != sup.columns || (curve.is_some() && model.channels() != 1) {
+        if columns != sup.columns || model.channels() != needs {
             return Err(Error::invalid(
                 "densities",
                 format!(
@@ -261,6 +262,9 @@ impl<'a> Trainer<'a> {
             probe.as_ref(),
             &stage.projection,
         )?;
+        if let Some(h) = stage.basis {
+            img = h.project(img);
+        }
         if let Some(c) = &view.columns {
             img = img.select(1, c.clone());
         }

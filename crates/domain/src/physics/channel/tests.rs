@@ -406,3 +406,58 @@ fn non_standard_layout_inputs_are_accepted() {
     let b = spec.project(&[(Material::Water, f)]).unwrap();
     assert_eq!(a, b);
 }
+
+/// The nodes a model uses to imitate the synthesis give back `project`'s line integrals (f64
+/// sum of w·exp(−Σμ·L), then −ln) for every channel kind, and a linear channel is one node.
+#[test]
+fn nodes_reproduce_the_synthesis() {
+    let mats = [Material::Water, Material::CorticalBone, Material::Iodine];
+    let lengths = [[0.0f32, 0.0, 0.0], [30.0, 0.0, 0.0], [120.0, 25.0, 0.4]];
+    let specs = [
+        mono(60.0),
+        poly(80),
+        ChannelSpec::Window {
+            lo_kev: 30.0,
+            hi_kev: 50.0,
+            kvp: 120,
+            filtration: Filtration::Al2_5,
+        },
+        ChannelSpec::Mixed {
+            lambda: 0.3,
+            low_kvp: 80,
+            high_kvp: 140,
+            filtration: Filtration::Al2_5,
+        },
+    ];
+    for spec in &specs {
+        let nodes = spec.nodes(&mats).unwrap();
+        let total: f64 = nodes.iter().map(|n| n.0).sum();
+        assert!(
+            (total - 1.0).abs() < 1e-12,
+            "{spec:?}: weights sum to {total}"
+        );
+        if matches!(spec, ChannelSpec::Mono { .. } | ChannelSpec::Mixed { .. }) {
+            assert_eq!(nodes.len(), 1, "{spec:?} is linear");
+        }
+        for l in &lengths {
+            let paths: Vec<_> = mats
+                .iter()
+                .zip(l)
+                .map(|(&m, &x)| (m, Array3::from_elem((1, 1, 1), x)))
+                .collect();
+            let want = spec.project(&paths).unwrap()[[0, 0, 0]] as f64;
+            let sum: f64 = nodes
+                .iter()
+                .map(|(w, mu)| {
+                    w * (-mu.iter().zip(l).map(|(u, x)| u * *x as f64).sum::<f64>()).exp()
+                })
+                .sum();
+            let got = -sum.ln();
+            // project returns f32: its rounding bounds the difference.
+            assert!(
+                (got - want).abs() <= 1e-6 * want.abs().max(1.0),
+                "{spec:?} at {l:?}: nodes give {got}, project {want}"
+            );
+        }
+    }
+}
