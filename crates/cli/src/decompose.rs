@@ -97,7 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.out.display()
         );
     }
-    let run_basis = BasisModel::open(&args.run_dir, &cpu_device())?;
+    let run_basis = BasisModel::open(&args.run_dir.join(RunDir::MODEL), &cpu_device())?;
     let materials = match (&args.basis, &run_basis) {
         (Some(names), _) => names
             .iter()

@@ -40,7 +40,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let path = RunDir::spectral_model(&args.run_dir)?;
     if let Some(kev) = args.kev
-        && let Some(b) = BasisModel::open(&args.run_dir, &cpu_device())?
+        && let Some(b) = BasisModel::open(&path, &cpu_device())?
     {
         let data = if args.projections {
             b.vmi_projections(kev)?

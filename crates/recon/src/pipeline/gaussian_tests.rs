@@ -224,6 +224,7 @@ fn initial_scales_are_the_lattice_spacing_and_models_round_trip() {
             mode: prism_render::ProjectionMode::Exact,
             cutoff: 2.5,
         },
+        monoenergetic: true,
     };
     save_model(&path, &model, None, &world, &info).unwrap();
     // Same model, same bytes (safetensors alone writes its metadata in hash-map order).

@@ -3,7 +3,7 @@
 //! images at any energy of the attenuation table (10–150 keV).
 //!
 //! Format `prism-basis/1`: the f32 tensor `densities_raw [K, B]` (the Gaussians' raw basis
-//! columns, same Gaussians and order as the model file; see [`crate::stage2::basis`] for their
+//! columns, same Gaussians and order as the model file; see [`crate::train::basis`] for their
 //! units) and the string metadata `format` and `basis` (JSON: `materials`, `reference_mu`
 //! (μ̂_b, mm⁻¹) and `channel_kev` (each trained channel's centre energy, keV)).
 
@@ -11,8 +11,8 @@ use crate::gaussian::io::{LoadedModel, TensorFile, Tensors, load_model};
 use crate::gaussian::model::GaussianModel;
 use crate::gaussian::volume::volumes_with;
 use crate::gaussian::{host_values, upload};
-use crate::stage2::BasisHead;
-use crate::stage2::basis::mix_raw;
+use crate::train::BasisHead;
+use crate::train::basis::mix_raw;
 use crate::{Error, Result};
 use burn::tensor::{Device, Tensor};
 use ndarray::{Array3, Axis};
@@ -65,13 +65,15 @@ pub struct BasisModel {
 }
 
 impl BasisModel {
-    /// The material model of the run in `dir`, or `None` when the run has no basis head.
-    pub fn open(dir: &Path, device: &Device) -> Result<Option<BasisModel>> {
-        let path = dir.join(BASIS_FILE);
+    /// The material model beside the spectral model file `model` (a run directory's
+    /// `gaussians.safetensors`), or `None` when there is no [`BASIS_FILE`] beside it (a run
+    /// without the basis head, or no spectral run at all).
+    pub fn open(model: &Path, device: &Device) -> Result<Option<BasisModel>> {
+        let path = model.with_file_name(BASIS_FILE);
         if !path.exists() {
             return Ok(None);
         }
-        let loaded = load_model(&dir.join(crate::pipeline::RunDir::MODEL), device)?;
+        let loaded = load_model(model, device)?;
         let f = TensorFile::open(&path, FORMAT)?;
         let meta: BasisMeta = f.json("basis")?;
         let b = meta.materials.len();

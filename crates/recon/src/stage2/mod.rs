@@ -9,12 +9,8 @@
 //! baseline started from the channels' mean attenuation ratios, so stage 2 does not start with
 //! every channel at the channel-mean density.
 //!
-//! With `stage2.basis` the spectral head is the basis-material model instead ([`basis`]): the
+//! With `stage2.basis` the spectral head is the basis-material head instead ([`crate::train::basis`]): the
 //! Gaussians carry one density per basis material and the channels are formed by the physics.
-
-pub mod basis;
-
-pub use basis::BasisHead;
 
 use crate::Result;
 use crate::evaluate::Evaluator;
@@ -22,7 +18,7 @@ use crate::gaussian::host::{inverse_softplus, softplus};
 use crate::gaussian::{GaussianConfig, GaussianMethod, GaussianModel, Learnable, World, upload};
 use crate::stage1::SharedGeometry;
 use crate::train::data::image;
-use crate::train::{CurveFit, Journal, Stage, Supervision};
+use crate::train::{BasisHead, CurveFit, Journal, Stage, Supervision};
 use burn::optim::AdamConfig;
 use burn::tensor::{Device, Tensor};
 use ndarray::Axis;

@@ -7,6 +7,7 @@
 //! `eval_every` iterations (its time is kept out of the training time), the records of
 //! `log.jsonl` ([`log`]) and progress reports to an [`Observer`].
 
+pub mod basis;
 pub mod curve;
 pub mod data;
 pub mod densify;
@@ -17,6 +18,7 @@ pub mod resume;
 pub mod settings;
 pub mod trainer;
 
+pub use basis::BasisHead;
 pub use curve::CurveFit;
 pub use data::{Supervision, View};
 pub use densify::DensifyCounts;

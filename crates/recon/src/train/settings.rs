@@ -1,10 +1,10 @@
 //! What a training stage is told: its iterations, which groups learn, the schedule's rates, the
 //! loss weights, densification, evaluation and seed.
 
+use super::BasisHead;
 use crate::Result;
 use crate::gaussian::config::{DensifyConfig, GaussianConfig, LearningRates, LossConfig};
 use crate::gaussian::{Learnable, World};
-use crate::stage2::BasisHead;
 use prism_domain::geometry::VolumeGrid;
 use prism_render::ProjectOptions;
 

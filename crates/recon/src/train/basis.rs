@@ -1,5 +1,5 @@
-//! The basis-material spectral head of 4D-SG stage 2 (`stage2.basis`), in place of the curve
-//! model: every Gaussian carries one density per basis material (water, cortical bone, iodine by
+//! The basis-material head in training (4D-SG stage 2 with `stage2.basis`), in place of the curve
+//! model ([`super::CurveFit`]): every Gaussian carries one density per basis material (water, cortical bone, iodine by
 //! default) instead of a curve, and each channel's projection is formed from them the way the
 //! simulator forms it ([`ChannelSpec::nodes`]): `p_c = −ln Σ_n w_n·exp(−Σ_b μ_b(E_n)·L_b)`, with
 //! `L_b` the rendered path length of material b, which is linear (`Σ_b μ_b·L_b`) for mono and
