@@ -7,7 +7,9 @@
 
 use anyhow::{Context, bail};
 use ndarray::Array3;
-use prism_domain::decompose::{Basis, Decomposition, basis_truth, channel_specs, true_vmi, vmi};
+use prism_domain::decompose::{
+    Basis, Decomposition, basis_truth, channel_specs, extrapolates, true_vmi, vmi,
+};
 use prism_domain::metrics::psnr::psnr;
 use prism_domain::physics::{ChannelSpec, Material};
 use prism_domain::scene::Scene;
@@ -143,7 +145,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     };
     let (lo, hi) = mono_range(&specs);
-    let outside = |e: f64| lo.is_none_or(|lo| e < lo) || hi.is_none_or(|hi| e > hi);
+    let centres = specs
+        .iter()
+        .map(ChannelSpec::mean_kev)
+        .collect::<Result<Vec<_>, _>>()?;
+    let outside = |e: f64| extrapolates(&centres, e);
     for &e in &args.kev {
         prism_domain::physics::attenuation::check_energy(e, "--kev")?;
         if outside(e) {

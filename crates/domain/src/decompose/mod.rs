@@ -338,6 +338,17 @@ impl Decomposition {
     }
 }
 
+/// Whether a VMI at `kev` extrapolates the basis model: `kev` outside the channels' centre
+/// energies `channel_kev` ([`ChannelSpec::mean_kev`]).
+pub fn extrapolates(channel_kev: &[f64], kev: f64) -> bool {
+    let lo = channel_kev.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = channel_kev
+        .iter()
+        .copied()
+        .fold(f64::NEG_INFINITY, f64::max);
+    !(lo..=hi).contains(&kev)
+}
+
 /// The virtual monoenergetic image at `kev` (mm⁻¹): `Σ_b ρ_b·μ_b(E)` over the basis fractions.
 pub fn vmi(basis: &Basis, fractions: &[Array3<f32>], kev: f64) -> Result<Array3<f32>> {
     let mu = basis.mu(kev)?;

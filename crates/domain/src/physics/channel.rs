@@ -101,6 +101,18 @@ fn full_quadrature(spectrum: &Spectrum) -> Result<Spectrum> {
     quadrature(spectrum, 0.0, f64::MAX)
 }
 
+/// The two tube spectra a mixed channel blends (errors name `low_kvp`, `high_kvp`).
+fn mixed_tubes(
+    low_kvp: u32,
+    high_kvp: u32,
+    filtration: Filtration,
+) -> Result<(Spectrum, Spectrum)> {
+    Ok((
+        tube_for_field(low_kvp, filtration, "low_kvp")?,
+        tube_for_field(high_kvp, filtration, "high_kvp")?,
+    ))
+}
+
 /// Fluence-weighted effective coefficients μ̄_m = Σ_E S(E)·μ_m(E) over quadrature nodes, mm⁻¹.
 fn effective(nodes: &Spectrum) -> Result<[f64; N_MATERIALS]> {
     let mu = mu_table(&nodes.energies_kev)?;
@@ -181,9 +193,8 @@ impl ChannelSpec {
                 high_kvp,
                 filtration,
             } => {
-                let low = tube_for_field(low_kvp, filtration, "low_kvp")?.mean_energy();
-                let high = tube_for_field(high_kvp, filtration, "high_kvp")?.mean_energy();
-                lambda * low + (1.0 - lambda) * high
+                let (low, high) = mixed_tubes(low_kvp, high_kvp, filtration)?;
+                lambda * low.mean_energy() + (1.0 - lambda) * high.mean_energy()
             }
             _ => self
                 .spectrum()?
@@ -240,8 +251,7 @@ impl ChannelSpec {
                         format!("{lambda} must lie in [0, 1]"),
                     ));
                 }
-                let low = tube_for_field(low_kvp, filtration, "low_kvp")?;
-                let high = tube_for_field(high_kvp, filtration, "high_kvp")?;
+                let (low, high) = mixed_tubes(low_kvp, high_kvp, filtration)?;
                 let low = effective(&full_quadrature(&low)?)?;
                 let high = effective(&full_quadrature(&high)?)?;
                 let coef = std::array::from_fn(|m| lambda * low[m] + (1.0 - lambda) * high[m]);

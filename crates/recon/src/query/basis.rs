@@ -184,9 +184,6 @@ impl BasisModel {
     /// Whether `kev` lies outside the trained channels' centre energies (an extrapolation of
     /// the basis model).
     pub fn extrapolates(&self, kev: f64) -> bool {
-        let e = &self.meta.channel_kev;
-        let lo = e.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = e.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        !(lo..=hi).contains(&kev)
+        prism_domain::decompose::extrapolates(&self.meta.channel_kev, kev)
     }
 }

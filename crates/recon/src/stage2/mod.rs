@@ -92,17 +92,11 @@ pub fn train_spectral(
                 );
             }
             let h = BasisHead::new(cfg, &specs, &world, &device.clone().autodiff())?;
-            let start = h.initial_raw(&model.to_host().densities, cfg.init_share);
-            let b = cfg.materials.len();
-            model.set_densities(upload(start, b, device));
-            let s2 = &config.stage2;
+            let start = h.initial_raw(&model.to_host().densities);
+            model.set_densities(upload(start, cfg.materials.len(), device));
             let stage = Stage {
-                iterations: s2.iterations,
-                learn: s2.freeze.learnable(),
-                densify: None,
-                seed: config.seed.wrapping_add(1),
                 basis: Some(&h),
-                ..Stage::geometry(config, "basis", "all", &geometry.volume, &world)
+                ..Stage::spectral(config, "basis", &geometry.volume, &world)
             };
             journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
             let raw = h.channel_raw(&model);
@@ -128,19 +122,8 @@ pub fn train_spectral(
                 lambda_curve: s2.lambda_curve,
                 lr: s2.lr_network,
             };
-            let stage = Stage {
-                iterations: s2.iterations,
-                learn: s2.freeze.learnable(),
-                densify: None,
-                seed: config.seed.wrapping_add(1),
-                ..Stage::geometry(
-                    config,
-                    s2.curve_model.kind.name(),
-                    "all",
-                    &geometry.volume,
-                    &world,
-                )
-            };
+            let stage =
+                Stage::spectral(config, s2.curve_model.kind.name(), &geometry.volume, &world);
             journal.train(&mut model, &sup, eval.as_ref(), &stage, Some(&mut fit))?;
             fit.raw_densities(&model)?
         }
@@ -167,9 +150,7 @@ pub fn train_spectral(
             let stage = Stage {
                 iterations: config.density_iterations,
                 learn: Learnable::DENSITY,
-                densify: None,
-                seed: config.seed.wrapping_add(1),
-                ..Stage::geometry(config, "densities", "all", &geometry.volume, &world)
+                ..Stage::spectral(config, "densities", &geometry.volume, &world)
             };
             journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
             model.densities.value.clone()

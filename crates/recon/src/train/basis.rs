@@ -19,18 +19,10 @@ use crate::gaussian::config::BasisConfig;
 use crate::gaussian::host::{inverse_softplus, softplus};
 use crate::gaussian::model::GaussianModel;
 use crate::gaussian::{World, host_values, upload};
-use burn::tensor::{Device, Tensor, TensorData, s};
+use burn::tensor::{Device, Tensor, s};
 use prism_domain::decompose::{Basis, Decomposition};
 use prism_domain::physics::ChannelSpec;
 use std::ops::Range;
-
-/// One channel's quadrature nodes among the head's columns of `nodes`.
-#[derive(Clone, Debug)]
-struct Segment {
-    range: Range<usize>,
-    /// One node of weight 1: the channel is linear in the path lengths.
-    linear: bool,
-}
 
 /// The basis head prepared for a scene's channels in a world.
 pub struct BasisHead {
@@ -44,8 +36,11 @@ pub struct BasisHead {
     /// `[B, N]` μ_b(E_n) / μ̂_b over every channel's nodes; `[1, N]` ln w_n.
     nodes: Tensor<2>,
     log_weights: Tensor<2>,
-    segments: Vec<Segment>,
+    /// Each channel's columns of `nodes`; a single node (of weight 1) is a linear channel.
+    segments: Vec<Range<usize>>,
     channel_kev: Vec<f64>,
+    /// Share of the stage-1 density each basis material starts with.
+    init_shares: Vec<f64>,
 }
 
 impl BasisHead {
@@ -78,10 +73,7 @@ impl BasisHead {
                 .nodes(mats)
                 .map_err(|e| e.under(&format!("channels[{i}]")))?;
             let start = columns.len();
-            segments.push(Segment {
-                range: start..start + nodes.len(),
-                linear: nodes.len() == 1,
-            });
+            segments.push(start..start + nodes.len());
             for (w, mu) in nodes {
                 log_w.push(w.ln() as f32);
                 columns.push(mu.iter().zip(&reference_mu).map(|(u, r)| u / r).collect());
@@ -96,10 +88,17 @@ impl BasisHead {
         let g: Vec<f32> = (0..b)
             .flat_map(|row| columns.iter().map(move |c| c[row] as f32))
             .collect();
+        let init_shares = (0..b)
+            .map(|i| match i {
+                0 => 1.0 - (b - 1) as f64 * config.init_share,
+                _ => config.init_share,
+            })
+            .collect();
         Ok(BasisHead {
             k: world.density_scale / world.scale,
-            nodes: Tensor::from_data(TensorData::new(g, [b, n]), device),
-            log_weights: Tensor::from_data(TensorData::new(log_w, [1, n]), device),
+            nodes: upload(g, n, device),
+            log_weights: upload(log_w, n, device),
+            init_shares,
             basis,
             reference_mu,
             effective,
@@ -131,39 +130,36 @@ impl BasisHead {
             .permute([0, 2, 3, 1])
             .reshape([p, b])
             .matmul(self.nodes.clone());
-        let k = self.k as f32;
-        let out: Vec<Tensor<2>> = self
-            .segments
-            .iter()
-            .map(|s| {
-                let y = y.clone().slice(s![.., s.range.clone()]);
-                if s.linear {
-                    return y;
-                }
-                // −(1/k)·ln Σ_n exp(ln w_n − k·y_n), shifted by the (constant) largest exponent.
-                let z = y * (-k) + self.log_weights.clone().slice(s![.., s.range.clone()]);
-                let top = z.clone().max_dim(1).detach();
-                ((z - top.clone()).exp().sum_dim(1).log() + top) * (-1.0 / k)
-            })
-            .collect();
-        let m = out.len();
-        Tensor::cat(out, 1)
-            .reshape([v, rows, cols, m])
-            .permute([0, 3, 1, 2])
+        let m = self.segments.len();
+        // Every channel linear (one node each): the nodes are the channels.
+        let channels = if y.dims()[1] == m {
+            y
+        } else {
+            let k = self.k as f32;
+            let out: Vec<Tensor<2>> = self
+                .segments
+                .iter()
+                .map(|r| {
+                    let y = y.clone().slice(s![.., r.clone()]);
+                    if r.len() == 1 {
+                        return y;
+                    }
+                    // −(1/k)·ln Σ_n exp(ln w_n − k·y_n), shifted by the (constant) largest
+                    // exponent.
+                    let z = y * (-k) + self.log_weights.clone().slice(s![.., r.clone()]);
+                    let top = z.clone().max_dim(1).detach();
+                    ((z - top.clone()).exp().sum_dim(1).log() + top) * (-1.0 / k)
+                })
+                .collect();
+            Tensor::cat(out, 1)
+        };
+        channels.reshape([v, rows, cols, m]).permute([0, 3, 1, 2])
     }
 
-    /// The start of stage 2 from the stage-1 raw densities `[K]`: raw basis columns `[K, B]`.
-    pub fn initial_raw(&self, structural: &[f32], init_share: f64) -> Vec<f32> {
-        let b = self.basis.materials().len();
-        let shares: Vec<f64> = (0..b)
-            .map(|i| {
-                if i == 0 {
-                    1.0 - (b - 1) as f64 * init_share
-                } else {
-                    init_share
-                }
-            })
-            .collect();
+    /// The start of stage 2 from the stage-1 raw densities `[K]`: raw basis columns `[K, B]`
+    /// (see the module docs).
+    pub fn initial_raw(&self, structural: &[f32]) -> Vec<f32> {
+        let shares = &self.init_shares;
         structural
             .iter()
             .flat_map(|&u| {

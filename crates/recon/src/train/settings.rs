@@ -59,6 +59,23 @@ impl<'a> Stage<'a> {
         }
     }
 
+    /// 4D-SG's spectral stage (stage 2) of `config` named `name`: `stage2`'s iterations and
+    /// freezing, no densification, its own seed, every channel fitted.
+    pub fn spectral(
+        config: &'a GaussianConfig,
+        name: &'a str,
+        grid: &'a VolumeGrid,
+        world: &'a World,
+    ) -> Stage<'a> {
+        Stage {
+            iterations: config.stage2.iterations,
+            learn: config.stage2.freeze.learnable(),
+            densify: None,
+            seed: config.seed.wrapping_add(1),
+            ..Stage::geometry(config, name, "all", grid, world)
+        }
+    }
+
     pub fn validate(&self) -> Result<()> {
         self.lr.validate()?;
         self.loss.validate()?;

@@ -2,6 +2,7 @@ use super::*;
 use crate::gaussian::cpu_device;
 use crate::gaussian::host::HostGaussians;
 use crate::gaussian::host::ScaleBounds;
+use burn::tensor::TensorData;
 use ndarray::Array3;
 use prism_domain::physics::{Filtration, Material};
 
@@ -137,7 +138,7 @@ fn the_start_keeps_the_structural_density() {
     let cfg = BasisConfig::default();
     let head = BasisHead::new(&cfg, &specs(), &WORLD, &dev).unwrap();
     let u = [-3.0f32, 0.0, 0.7, 4.0];
-    let raw = head.initial_raw(&u, cfg.init_share);
+    let raw = head.initial_raw(&u);
     let mut host = HostGaussians::empty(3);
     for (i, g) in raw.chunks(3).enumerate() {
         host.means.extend([i as f32 * 0.1, 0.0, 0.0]);
