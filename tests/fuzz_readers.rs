@@ -23,10 +23,13 @@ use prism_domain::observe::Silent;
 use prism_domain::scene::Scene;
 use prism_domain::simulate::SimulateConfig;
 use prism_recon::MethodConfig;
+use prism_recon::device::cpu_device;
 use prism_recon::evaluate::Evaluation;
-use prism_recon::gaussian::{GaussianConfig, GaussianMethod, cpu_device};
-use prism_recon::pipeline::{RunDir, RunOptions, run};
-use prism_recon::stage1::checkpoint;
+use prism_recon::gaussians::{GaussianConfig, GaussianMethod};
+use prism_recon::methods::fourdsg::stage1::checkpoint;
+use prism_recon::pipeline::run;
+use prism_recon::record::RunDir;
+use prism_recon::setup::RunOptions;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -318,7 +321,7 @@ const MODEL: Target = Target {
     read: |dir, b| {
         let path = dir.join("gaussians.safetensors");
         std::fs::write(&path, b).unwrap();
-        prism_recon::gaussian::io::load_model(&path, &cpu_device())
+        prism_recon::gaussians::io::load_model(&path, &cpu_device())
             .map(|_| ())
             .map_err(|e| e.to_string())
     },

@@ -1,13 +1,13 @@
 //! `prism ablate <freeze|curve-model> <config.yaml> -s <scene_dir> -o <out_dir>`: 4D-SG stage-2
-//! ablations from one shared stage 1 (see `prism_recon::pipeline::ablation`).
+//! ablations from one shared stage 1 (see `prism_recon::methods::fourdsg::ablation`).
 
 use crate::args::{EvalArgs, GaussianArgs, OutArgs, SetArgs};
 use crate::progress::Bars;
 use anyhow::bail;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
-use prism_recon::gaussian::GaussianMethod;
-use prism_recon::pipeline::ablation::{Study, ablate, markdown};
+use prism_recon::gaussians::GaussianMethod;
+use prism_recon::methods::fourdsg::ablation::{Study, ablate, markdown};
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -64,7 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     print!("{}", markdown(&report));
     eprintln!(
         "→ {}",
-        dir.join(prism_recon::pipeline::RunDir::ABLATION).display()
+        dir.join(prism_recon::record::RunDir::ABLATION).display()
     );
     Ok(())
 }

@@ -5,10 +5,12 @@ use crate::progress::Bars;
 use anyhow::bail;
 use prism_domain::yaml::Overrides;
 use prism_recon::MethodConfig;
+use prism_recon::device::{DeviceChoice, cpu_device};
 use prism_recon::evaluate::lpips::Lpips;
 use prism_recon::evaluate::{Evaluation, Protocol, SliceAxes};
-use prism_recon::gaussian::{DeviceChoice, cpu_device};
-use prism_recon::pipeline::{Checkpointing, RunDir, RunOptions};
+use prism_recon::record::RunDir;
+use prism_recon::setup::Checkpointing;
+use prism_recon::setup::RunOptions;
 use std::path::{Path, PathBuf};
 
 /// `--set key.path=value` overrides of a YAML config.

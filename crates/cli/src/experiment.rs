@@ -14,9 +14,9 @@ use prism_experiment::execute::{
 use prism_experiment::report::write_report;
 use prism_experiment::slurm::{SlurmOptions, submit};
 use prism_experiment::{LoadedSuite, Plan};
+use prism_recon::device::cpu_device;
 use prism_recon::evaluate::lpips::Lpips;
 use prism_recon::evaluate::{Evaluation, Protocol, SliceAxes};
-use prism_recon::gaussian::cpu_device;
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]

@@ -6,7 +6,7 @@
 use anyhow::{Context, bail};
 use prism_domain::export::{VolumeFormat, read_volume_npy, write_volume};
 use prism_domain::scene::Scene;
-use prism_recon::pipeline::RunDir;
+use prism_recon::record::RunDir;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 

@@ -7,7 +7,7 @@ use crate::progress::Bars;
 use anyhow::Context;
 use prism_domain::import::{ImportConfig, ReferenceKind, assemble, footprint};
 use prism_domain::observe::{Level, Observer};
-use prism_recon::classic::{ClassicConfig, ClassicMethod, reconstruct_channel};
+use prism_recon::methods::classic::{ClassicConfig, ClassicMethod, reconstruct_channel};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]

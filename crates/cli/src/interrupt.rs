@@ -1,6 +1,6 @@
 //! Ctrl-C and `kill` during a run: the first SIGINT or SIGTERM sets a flag that a Gaussian
 //! run checks after every step (it then saves its state and stops, see
-//! `prism_recon::train::resume`); a second one ends the process at once (exit status 130).
+//! `prism_recon::gaussians::train::checkpoints`); a second one ends the process at once (exit status 130).
 
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, OnceLock};

@@ -6,10 +6,10 @@
 //! a curve run whose channels are energies, the curve query at that energy.
 
 use ndarray::Array3;
-use prism_recon::gaussian::cpu_device;
-use prism_recon::pipeline::RunDir;
-use prism_recon::query::BasisModel;
-use prism_recon::query::{Query, QueryAt};
+use prism_recon::device::cpu_device;
+use prism_recon::methods::fourdsg::query::BasisModel;
+use prism_recon::methods::fourdsg::query::{Query, QueryAt};
+use prism_recon::record::RunDir;
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]

@@ -5,7 +5,8 @@ use crate::args::{EvalArgs, GaussianArgs, MemoryArgs, OutArgs, SetArgs};
 use crate::progress::Bars;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
-use prism_recon::pipeline::{RunDir, footprint, run};
+use prism_recon::pipeline::{footprint, run};
+use prism_recon::record::RunDir;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]

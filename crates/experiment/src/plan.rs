@@ -8,7 +8,7 @@ use crate::suite::{LoadedSuite, StudyKind, StudySpec};
 use crate::{Error, Result};
 use prism_domain::simulate::SimulateConfig;
 use prism_domain::yaml::Overrides;
-use prism_recon::pipeline::ablation::Study;
+use prism_recon::methods::fourdsg::ablation::Study;
 use prism_recon::{Method, MethodConfig};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -5,9 +5,9 @@ use crate::plan::{CellKind, Plan, StudyPoint};
 use crate::suite::Suite;
 use crate::{Error, Result};
 use prism_recon::evaluate::Metrics;
-use prism_recon::pipeline::RunDir;
-use prism_recon::pipeline::ablation::AblationReport;
-use prism_recon::query::HoldoutScore;
+use prism_recon::methods::fourdsg::ablation::AblationReport;
+use prism_recon::methods::fourdsg::query::HoldoutScore;
+use prism_recon::record::RunDir;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -29,7 +29,7 @@ impl RunResult {
             dir: dir.to_path_buf(),
             variant,
             metrics: RunDir::read_json(&dir.join(RunDir::METRICS))?,
-            holdout: RunDir::read_holdout(dir)?,
+            holdout: prism_recon::methods::fourdsg::query::holdout::read_scores(dir)?,
         })
     }
 }

@@ -1,4 +1,6 @@
-//! What Prism's custom Burn ops (`prism-render`, `prism-gscnet`, `prism-field`) share, written once:
+//! What Prism's custom Burn ops (`prism-render`, `prism-gscnet`, `prism-field`) share, written once
+//! (all but [`simd`] behind the `burn` feature, so `prism-domain`'s projector uses [`simd`] without
+//! Burn):
 //!
 //! * [`simd`]: whether the CPU runs the AVX2+FMA variants of the CPU kernels;
 //! * [`cpu`]: f32 buffers of the CPU backends' tensors ([`cpu::CpuFloat`], implemented for Flex
@@ -8,7 +10,9 @@
 //! * `cube` (feature `cube`): launch helpers of the CubeCL kernels (buffers, 1-D launch sizes,
 //!   the f32 atomic-add capability).
 
+#[cfg(feature = "burn")]
 pub mod autodiff;
+#[cfg(feature = "burn")]
 pub mod cpu;
 #[cfg(feature = "cube")]
 pub mod cube;

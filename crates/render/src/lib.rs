@@ -14,8 +14,8 @@
 
 // Index loops mirror the matrix math (and the CubeCL kernels that port it).
 #![allow(clippy::needless_range_loop)]
-// Without a backend feature the crate serves its plain types only (the camera, the options, the
-// per-Gaussian math; `prism-domain` uses it so): the op registrations are then unused.
+// Without a backend feature the crate serves its plain types only (the options, the per-Gaussian
+// math): the op registrations are then unused.
 #![cfg_attr(
     not(any(feature = "flex", feature = "ndarray", feature = "wgpu")),
     allow(unused)
@@ -23,7 +23,6 @@
 
 mod autodiff;
 mod backend;
-pub mod camera;
 pub mod cpu;
 #[cfg(feature = "wgpu")]
 pub mod cube;
@@ -32,10 +31,12 @@ pub mod gaussian_math;
 pub mod ops;
 pub mod options;
 
-pub use camera::{Camera, Projection, Ray};
 pub use error::{RenderError, Result};
 pub use ops::{
     GaussianOps, Gaussians, is_gpu, project, screen_grad_norm, screen_probe, validate_cameras,
     voxelize,
 };
 pub use options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions};
+/// The camera types, from the Burn-free `prism-camera` (`crate::camera::Camera` as before).
+pub use prism_camera as camera;
+pub use prism_camera::{Camera, Projection, Ray};

@@ -8,7 +8,7 @@ use crate::progress::Bars;
 #[cfg(not(target_env = "msvc"))]
 mod iteration;
 
-use prism_recon::classic::bench::{BenchOptions, ordering, run as run_classic};
+use prism_recon::methods::classic::bench::{BenchOptions, ordering, run as run_classic};
 
 #[derive(clap::Args)]
 pub struct Args {

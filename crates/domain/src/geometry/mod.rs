@@ -17,7 +17,7 @@
 mod convert;
 
 pub use convert::{R2Scanner, TigreGeometry};
-pub use prism_render::{Camera, Projection, Ray};
+pub use prism_camera::{Camera, Projection, Ray};
 
 use crate::error::{ensure_finite as finite, ensure_positive as positive};
 use crate::{Error, Result};

@@ -9,7 +9,7 @@
 
 use crate::Result;
 use crate::error::{ensure_finite, ensure_positive};
-use prism_render::Ray;
+use prism_camera::Ray;
 use serde::{Deserialize, Serialize};
 
 /// An ellipsoid in world coordinates (mm); see the module docs for the rotation convention.

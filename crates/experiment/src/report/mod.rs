@@ -150,7 +150,7 @@ fn executions(ctx: &Context) -> String {
     let mut unknown = 0;
     for i in 0..ctx.plan.runs.len() {
         let dir = ctx.plan.run_dir(ctx.out, i);
-        if !dir.join(prism_recon::pipeline::RunDir::MANIFEST).exists() {
+        if !dir.join(prism_recon::record::RunDir::MANIFEST).exists() {
             continue;
         }
         match read_record(&dir).and_then(|r| r.execution) {

@@ -13,9 +13,9 @@ use ndarray::{Array2, Array3, Axis, s};
 use prism_domain::metrics::quantile;
 use prism_domain::metrics::{SsimParams, projection_metrics};
 use prism_domain::scene::Scene;
-use prism_recon::gaussian::cpu_device;
-use prism_recon::pipeline::RunDir;
-use prism_recon::query::{Query, QueryAt};
+use prism_recon::device::cpu_device;
+use prism_recon::methods::fourdsg::query::{Query, QueryAt};
+use prism_recon::record::RunDir;
 use std::path::Path;
 
 fn read_volume(path: &Path) -> Option<Array3<f32>> {

@@ -333,7 +333,7 @@ impl Lpips {
                 None => s,
             });
         }
-        let values = crate::gaussian::host_values(&total.expect("five taps"));
+        let values = crate::device::host_values(&total.expect("five taps"));
         Ok(values.into_iter().map(f64::from).collect())
     }
 }
@@ -351,7 +351,7 @@ pub(crate) mod tests {
 
     /// The fixture's network (random trunk, the package's linear layers) on the CPU.
     pub(crate) fn fixture_model(net: Net) -> Lpips {
-        Lpips::from_tensors(net, &fixture_net(net), &crate::gaussian::cpu_device()).unwrap()
+        Lpips::from_tensors(net, &fixture_net(net), &crate::device::cpu_device()).unwrap()
     }
 
     fn fixture(name: &str) -> std::path::PathBuf {
@@ -429,7 +429,7 @@ pub(crate) mod tests {
             let (v, s) = &pairs[&name];
             Array2::from_shape_vec((s[0], s[1]), v.clone()).unwrap()
         };
-        let device = crate::gaussian::cpu_device();
+        let device = crate::device::cpu_device();
         let n = reference["pairs"].as_u64().unwrap() as usize;
         for net in [Net::Alex, Net::Vgg] {
             let model = Lpips::from_tensors(net, &fixture_net(net), &device).unwrap();
@@ -457,7 +457,7 @@ pub(crate) mod tests {
 
     #[test]
     fn a_batch_gives_each_pairs_distance_and_bad_weights_are_named() {
-        let device = crate::gaussian::cpu_device();
+        let device = crate::device::cpu_device();
         let model = Lpips::from_tensors(Net::Alex, &fixture_net(Net::Alex), &device).unwrap();
         let pairs = read_safetensors(&fixture("pairs.safetensors"));
         let img = |name: &str| {

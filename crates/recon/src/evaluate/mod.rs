@@ -11,13 +11,8 @@ pub mod protocol;
 
 pub use protocol::{Evaluation, Protocol, ProtocolRecord, Scores, SliceAxes, score};
 
-use crate::gaussian::GaussianModel;
-use crate::gaussian::World;
-use crate::gaussian::volume::{volumes, volumes_with};
 use crate::{Error, Result};
-use burn::tensor::Tensor;
-use ndarray::{Array3, Array4, ArrayView3, Axis};
-use prism_domain::geometry::VolumeGrid;
+use ndarray::{Array3, ArrayView3, Axis};
 use prism_domain::metrics::{SsimParams, projection_metrics, psnr, ssim_3d};
 use prism_domain::projector::Joseph;
 use prism_domain::scene::{Scene, SpectralCoordinate};
@@ -182,36 +177,4 @@ pub fn score_volume(pred: ArrayView3<f32>, truth: ArrayView3<f32>) -> Result<(f6
         psnr(p.view(), t.view(), 1.0)?,
         ssim_3d(p.view(), t.view(), &SsimParams::default())?.mean,
     ))
-}
-
-/// Reference volumes to score a model against during training.
-pub struct Evaluator {
-    /// Reconstruction grid (millimetres) and the world the model lives in.
-    pub grid: VolumeGrid,
-    pub world: World,
-    /// One reference (mm⁻¹, `[z][y][x]`) per density column.
-    pub references: Vec<Array3<f32>>,
-}
-
-impl Evaluator {
-    /// Mean PSNR / SSIM over columns, after dividing both volumes by the reference's maximum.
-    pub fn score(&self, model: &GaussianModel) -> Result<(f64, f64)> {
-        self.score_volumes(volumes(model, &self.grid, &self.world)?)
-    }
-
-    /// [`Evaluator::score`] with the model's densities replaced by raw columns `[K, M]`.
-    pub fn score_raw(&self, model: &GaussianModel, raw: Tensor<2>) -> Result<(f64, f64)> {
-        self.score_volumes(volumes_with(model, raw, &self.grid, &self.world)?)
-    }
-
-    fn score_volumes(&self, vols: Array4<f32>) -> Result<(f64, f64)> {
-        let (mut p, mut s) = (0.0, 0.0);
-        for (c, truth) in self.references.iter().enumerate() {
-            let (a, b) = score_volume(vols.index_axis(Axis(0), c), truth.view())?;
-            p += a;
-            s += b;
-        }
-        let n = self.references.len().max(1) as f64;
-        Ok((p / n, s / n))
-    }
 }

@@ -7,10 +7,10 @@
 //! 0.15 or fitted: the least-squares factor that makes the voxelized initial Gaussians match the
 //! FDK volume (one voxelization; the voxelization is linear in the densities).
 
-use crate::classic::{Window, fdk};
-use crate::gaussian::config::{DensityRescale, InitConfig, RescaleRule};
-use crate::gaussian::host::{HostGaussians, ScaleBounds, inverse_softplus};
-use crate::gaussian::{GaussianConfig, GaussianModel, World};
+use crate::algorithms::{Window, fdk};
+use crate::gaussians::config::{DensityRescale, InitConfig, RescaleRule};
+use crate::gaussians::host::{HostGaussians, ScaleBounds, inverse_softplus};
+use crate::gaussians::{GaussianConfig, GaussianModel, World};
 use crate::{Error, Result};
 use burn::tensor::Device;
 use kiddo::SquaredEuclidean;
@@ -144,11 +144,11 @@ fn fit_rescale(
 ) -> Result<f64> {
     let mut probe = host.clone();
     probe.densities = values.iter().map(|&v| inverse_softplus(v) as f32).collect();
-    let model = crate::gaussian::GaussianModel::new(&probe, *bounds, device);
+    let model = crate::gaussians::GaussianModel::new(&probe, *bounds, device);
     let g = model.activate(None).gaussians;
     let vol = prism_render::voxelize(&g, &world.voxel_grid(grid), &Default::default())
         .map_err(|e| Error::invalid("init", e.to_string()))?;
-    let v = crate::gaussian::host_values(&vol);
+    let v = crate::device::host_values(&vol);
     let (mut num, mut den) = (0.0f64, 0.0f64);
     for (a, b) in v.iter().zip(fdk.iter()) {
         let b = *b as f64 / world.density_scale;

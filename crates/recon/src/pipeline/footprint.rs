@@ -15,9 +15,9 @@
 //! known size; see [`GAUSSIAN_BYTES`] and [`prism_domain::memory::PROCESS_BYTES`].
 
 use crate::MethodConfig;
-use crate::classic::ClassicMethod;
-use crate::classic::sart::{block_count, caches_column_sums};
-use crate::gaussian::config::GaussianMethod;
+use crate::algorithms::sart::{block_count, caches_column_sums};
+use crate::gaussians::config::GaussianMethod;
+use crate::methods::classic::ClassicMethod;
 use prism_domain::memory::{Footprint, bytes};
 use prism_domain::scene::Scene;
 

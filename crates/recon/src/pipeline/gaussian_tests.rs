@@ -3,16 +3,17 @@
 
 use super::tests::scene;
 use super::{RunDir, RunOptions, run};
+use crate::device::cpu_device;
 use crate::evaluate::{Evaluation, Metrics};
-use crate::gaussian::config::{DensifyConfig, InitConfig};
-use crate::gaussian::host::{self, HostGaussians, ScaleBounds, inverse_softplus};
-use crate::gaussian::io::{ModelInfo, load_model, save_model, write_ply};
-use crate::gaussian::{
-    GaussianConfig, GaussianMethod, GaussianModel, Learnable, ProjectionConfig, World, cpu_device,
+use crate::gaussians::config::{DensifyConfig, InitConfig};
+use crate::gaussians::host::{self, HostGaussians, ScaleBounds, inverse_softplus};
+use crate::gaussians::io::{ModelInfo, load_model, save_model, write_ply};
+use crate::gaussians::train::densify::densify_and_prune;
+use crate::gaussians::{
+    GaussianConfig, GaussianMethod, GaussianModel, Learnable, ProjectionConfig, World,
 };
 use crate::init::from_fdk;
-use crate::query;
-use crate::train::densify::densify_and_prune;
+use crate::methods::fourdsg::query;
 use crate::{MethodConfig, Result};
 use burn::tensor::Device;
 use prism_domain::observe::Silent;
@@ -540,7 +541,8 @@ fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
 
 #[test]
 fn the_projection_mode_reaches_training_and_queries() {
-    use crate::query::{Query, QueryAt, render_views};
+    use crate::gaussians::volume::render_views;
+    use crate::methods::fourdsg::query::{Query, QueryAt};
     use prism_render::ProjectionMode;
     let scene = scene();
     let dev = cpu_device();
@@ -602,7 +604,7 @@ fn a_4dsg_run_on_wgpu_follows_the_cpu_run() {
         (losses(dir.path()), report)
     };
     let (cpu_log, cpu) = run_with(&cpu_device());
-    let (gpu_log, gpu) = run_with(&crate::gaussian::DeviceChoice::Wgpu.device().unwrap());
+    let (gpu_log, gpu) = run_with(&crate::device::DeviceChoice::Wgpu.device().unwrap());
     // The kernels agree to ≤ 1e-5 relative per call (the parity tests); over 60 Adam steps
     // the losses drift apart by ~1e-4 relative (measured 1.1e-4), with the same densification.
     assert_eq!(cpu_log.len(), gpu_log.len());

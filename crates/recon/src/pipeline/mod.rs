@@ -1,21 +1,19 @@
 //! The run pipeline: one entry point, [`run`], for every method. It checks the scene, runs the
-//! method's stages into a [`RunDir`], scores the volumes ([`crate::evaluate`]) and publishes the
-//! directory as a whole. [`ablation`] trains several stage-2 variants from one stage 1.
+//! method ([`crate::methods`]) into a [`RunDir`], scores the volumes ([`crate::evaluate`]) and
+//! publishes the directory as a whole. [`footprint`] estimates a run's peak memory.
 
-pub mod ablation;
-mod classic;
 mod footprint;
 mod gaussian;
-mod naf;
-mod run_dir;
-mod setup;
 
 pub use footprint::footprint;
-pub use run_dir::{Manifest, RunDir};
-pub use setup::{Checkpointing, Outcome, RunOptions};
 
+use crate::evaluate::Metrics;
+use crate::methods::{classic, naf};
+use crate::record::RunDir;
+use crate::setup::RunOptions;
 use crate::{MethodConfig, Result};
 use prism_domain::scene::Scene;
+use std::path::PathBuf;
 
 /// Reconstruct `scene` with `config` into `dir` and publish it.
 pub fn run(
@@ -27,9 +25,9 @@ pub fn run(
     options.check(config)?;
     dir.write_text(RunDir::CONFIG, &config.resolved_yaml()?)?;
     let metrics = match config {
-        MethodConfig::Classic(c) => classic::run(c, scene, &mut dir, options)?,
+        MethodConfig::Classic(c) => classic::run::run(c, scene, &mut dir, options)?,
         MethodConfig::Gaussian(c) => gaussian::run(c, scene, &mut dir, options)?,
-        MethodConfig::Naf(c) => naf::run(c, scene, &mut dir, options)?,
+        MethodConfig::Naf(c) => naf::run::run(c, scene, &mut dir, options)?,
     };
     if let Some(m) = &metrics {
         dir.write_json(RunDir::METRICS, m)?;
@@ -42,6 +40,15 @@ pub fn run(
         std::fs::remove_file(&c.path).map_err(|e| crate::Error::io(&c.path, e))?;
     }
     Ok(Outcome { dir, metrics })
+}
+
+/// A finished run.
+#[derive(Clone, Debug)]
+pub struct Outcome {
+    /// Where the run directory was published.
+    pub dir: PathBuf,
+    /// The scores (`metrics.json`), when the scene has reference volumes.
+    pub metrics: Option<Metrics>,
 }
 
 #[cfg(test)]

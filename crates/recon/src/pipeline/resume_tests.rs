@@ -1,11 +1,14 @@
 //! Interrupted Gaussian and NAF runs, resumed from their checkpoint, end exactly as
-//! uninterrupted ones (`crate::train::resume`, `crate::naf::resume`); divergence saves the last
+//! uninterrupted ones (`crate::gaussians::train::checkpoints`, `crate::methods::naf::resume`); divergence saves the last
 //! good state; mismatched resumes are refused.
 
 use super::gaussian_tests::{losses, three_channel_scene, tiny};
 use super::tests::scene;
-use super::{Checkpointing, RunDir, RunOptions, run};
-use crate::gaussian::{GaussianConfig, GaussianMethod, cpu_device};
+use super::run;
+use crate::record::RunDir;
+use crate::setup::{Checkpointing, RunOptions};
+use crate::device::cpu_device;
+use crate::gaussians::{GaussianConfig, GaussianMethod};
 use crate::{Error, MethodConfig, Result};
 use prism_domain::observe::Observer;
 use prism_domain::scene::Scene;

@@ -2,9 +2,10 @@
 //! reruns into a used directory.
 
 use super::*;
-use crate::classic::{ClassicConfig, ClassicMethod, Window};
+use crate::algorithms::Window;
+use crate::methods::classic::{ClassicConfig, ClassicMethod};
+use crate::device::cpu_device;
 use crate::evaluate::Evaluation;
-use crate::gaussian::cpu_device;
 use ndarray::{Array2, Array3, Array4, Axis, stack};
 use prism_domain::geometry::{Beam, Detector, Geometry, VolumeGrid};
 use prism_domain::observe::Silent;
@@ -387,7 +388,7 @@ fn config_parsing_names_bad_fields() {
 /// against SART on the same scene.
 #[test]
 fn naf_reconstructs_the_phantom_above_a_floor_set_by_sart() {
-    use crate::naf::NafConfig;
+    use crate::methods::naf::NafConfig;
     let sc = scene();
     let dir = tempfile::tempdir().unwrap();
     let yaml = "method: naf\niterations: 200\nrays_per_batch: 256\nsamples_per_ray: 40\n\

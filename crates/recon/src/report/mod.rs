@@ -4,7 +4,7 @@
 
 use crate::Result;
 use crate::evaluate::Metrics;
-use crate::pipeline::RunDir;
+use crate::record::RunDir;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -47,7 +47,7 @@ impl RunScores {
             })
             .collect();
         channels.extend(
-            RunDir::read_holdout(dir)?
+            crate::methods::fourdsg::query::holdout::read_scores(dir)?
                 .into_iter()
                 .map(|s| ChannelScore {
                     volume: volume(&s.label),

@@ -1,0 +1,92 @@
+//! What a training stage is told: its iterations, which groups learn, the schedule's rates, the
+//! loss weights, densification, evaluation and seed.
+
+use crate::Result;
+use crate::gaussians::config::{DensifyConfig, GaussianConfig, LearningRates, LossConfig};
+use crate::gaussians::spectral::BasisHead;
+use crate::gaussians::{Learnable, World};
+use prism_domain::geometry::VolumeGrid;
+use prism_render::ProjectOptions;
+
+/// The settings of one training stage.
+pub struct Stage<'a> {
+    /// Name in the log (`r2gs`, `geometry`, `densities`, and `gscnet` or `mlp` for stage 2).
+    pub name: &'a str,
+    /// What is fitted, for the log (`structural`, a channel label, `all`).
+    pub channel: &'a str,
+    pub iterations: usize,
+    pub learn: Learnable,
+    pub lr: &'a LearningRates,
+    pub loss: &'a LossConfig,
+    /// How the training views are rendered.
+    pub projection: ProjectOptions,
+    pub densify: Option<&'a DensifyConfig>,
+    /// Evaluate (voxelize and score) every this many iterations and at the end; 0: only at the end.
+    pub eval_every: usize,
+    /// Grid of the TV patch's voxel size and of the volume box (millimetres).
+    pub grid: &'a VolumeGrid,
+    pub world: &'a World,
+    pub seed: u64,
+    /// The basis-material head (4D-SG stage 2 with `stage2.basis`): the model's density columns
+    /// are basis materials and the head forms the supervised channels from their projections.
+    pub basis: Option<&'a BasisHead>,
+}
+
+impl<'a> Stage<'a> {
+    /// A geometry stage of `config` (all groups learnable, the config's schedule and
+    /// densification) named `name`, fitting `channel`, on `grid` (millimetres) in `world`.
+    pub fn geometry(
+        config: &'a GaussianConfig,
+        name: &'a str,
+        channel: &'a str,
+        grid: &'a VolumeGrid,
+        world: &'a World,
+    ) -> Stage<'a> {
+        Stage {
+            name,
+            channel,
+            iterations: config.iterations,
+            learn: Learnable::ALL,
+            lr: &config.lr,
+            loss: &config.loss,
+            projection: config.projection.options(),
+            densify: config.densify.as_ref(),
+            eval_every: config.eval_every,
+            grid,
+            world,
+            seed: config.seed,
+            basis: None,
+        }
+    }
+
+    /// 4D-SG's spectral stage (stage 2) of `config` named `name`: `stage2`'s iterations and
+    /// freezing, no densification, its own seed, every channel fitted.
+    pub fn spectral(
+        config: &'a GaussianConfig,
+        name: &'a str,
+        grid: &'a VolumeGrid,
+        world: &'a World,
+    ) -> Stage<'a> {
+        Stage {
+            iterations: config.stage2.iterations,
+            learn: config.stage2.freeze.learnable(),
+            densify: None,
+            seed: config.seed.wrapping_add(1),
+            ..Stage::geometry(config, name, "all", grid, world)
+        }
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        self.lr.validate()?;
+        self.loss.validate()?;
+        if let Some(d) = self.densify {
+            d.validate()?;
+        }
+        Ok(())
+    }
+
+    /// Densification in this stage: configured, and the positions learn.
+    pub fn densification(&self) -> Option<&DensifyConfig> {
+        self.densify.filter(|_| self.learn.position)
+    }
+}

@@ -1,0 +1,125 @@
+//! Configuration of the classic methods (YAML `method: fdk | sart | cgls`): every field but
+//! `method` has a default.
+
+use crate::algorithms::{Order, SartOptions, Window};
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Classic reconstruction method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "crate::Method", into = "crate::Method")]
+pub enum ClassicMethod {
+    /// FDK (cone) / FBP (parallel), one pass.
+    Fdk,
+    /// The SART family: SART (`block_size: 1`), OS-SART, SIRT (`block_size` ≥ views).
+    Sart,
+    /// CGLS on the exact Joseph pair.
+    Cgls,
+}
+
+impl ClassicMethod {
+    /// Name as written in configs.
+    pub fn name(self) -> &'static str {
+        crate::Method::from(self).name()
+    }
+}
+
+/// A classic reconstruction's configuration (YAML). Every field but `method` has a default
+/// ([`ClassicConfig::default`] states them; `method` is read first, by
+/// [`crate::MethodConfig`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ClassicConfig {
+    pub method: ClassicMethod,
+    /// FDK ramp window: ram-lak (default), shepp-logan, cosine, hamming, hann.
+    pub filter: Window,
+    /// Epochs (SART family, default 3) or iterations (CGLS, default 10); ignored by FDK.
+    /// Both methods semi-converge on sparse views (the data are not in the range of the discrete
+    /// projector): on phantom-3mono at 50 views the mean PSNR was SART 39.5 / 35.3 / 33.7 dB at
+    /// 3 / 10 / 20 epochs and CGLS 32.9 / 36.3 / 35.2 / 33.8 dB at 5 / 10 / 15 / 20 iterations.
+    pub iterations: Option<usize>,
+    /// SART family: views per block (1 = SART, default; ≥ views = SIRT).
+    pub block_size: usize,
+    /// SART family: relaxation λ > 0 (default 1).
+    pub lambda: f64,
+    /// SART family: λ multiplier after each epoch, in (0, 1] (default 1).
+    pub lambda_decay: f64,
+    /// SART family: block order, `random` (default, seeded) or `ordered`.
+    pub order: Order,
+    /// SART family: clip negative values (default true).
+    pub nonneg: bool,
+    /// Seed of the random block order (default 0).
+    pub seed: u64,
+}
+
+impl Default for ClassicConfig {
+    fn default() -> Self {
+        ClassicConfig {
+            method: ClassicMethod::Fdk,
+            filter: Window::default(),
+            iterations: None,
+            block_size: 1,
+            lambda: 1.0,
+            lambda_decay: 1.0,
+            order: Order::default(),
+            nonneg: true,
+            seed: 0,
+        }
+    }
+}
+
+impl ClassicConfig {
+    /// A configuration for `method` with every default.
+    pub fn new(method: ClassicMethod) -> Self {
+        ClassicConfig {
+            method,
+            ..ClassicConfig::default()
+        }
+    }
+
+    /// Parse and validate YAML; errors name the field and `file`.
+    pub fn from_yaml(text: &str, file: &Path) -> Result<Self> {
+        let cfg: ClassicConfig =
+            serde_yaml_ng::from_str(text).map_err(|e| prism_domain::yaml::error(file, &e))?;
+        cfg.validate().map_err(|e| e.in_file(file))?;
+        Ok(cfg)
+    }
+
+    /// The iteration count after defaults (0 for FDK).
+    pub fn resolved_iterations(&self) -> usize {
+        match (self.method, self.iterations) {
+            (ClassicMethod::Fdk, _) => 0,
+            (_, Some(n)) => n,
+            (ClassicMethod::Sart, None) => 3,
+            (ClassicMethod::Cgls, None) => 10,
+        }
+    }
+
+    /// This configuration with defaults made explicit.
+    pub fn resolved(&self) -> Self {
+        let mut c = self.clone();
+        c.iterations = Some(self.resolved_iterations());
+        c
+    }
+
+    /// Check ranges; errors name the field.
+    pub fn validate(&self) -> Result<()> {
+        if self.method != ClassicMethod::Fdk && self.iterations == Some(0) {
+            return Err(Error::invalid("iterations", "must be at least 1"));
+        }
+        self.sart_options().validate()
+    }
+
+    pub(crate) fn sart_options(&self) -> SartOptions {
+        SartOptions {
+            iterations: self.resolved_iterations().max(1),
+            block_size: self.block_size,
+            lambda: self.lambda,
+            lambda_decay: self.lambda_decay,
+            nonneg: self.nonneg,
+            order: self.order,
+            seed: self.seed,
+        }
+    }
+}

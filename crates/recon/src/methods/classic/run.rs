@@ -1,0 +1,53 @@
+//! A classic method's run: every channel reconstructed independently from its training views.
+
+use super::{ClassicConfig, reconstruct_channel};
+use crate::Result;
+use crate::evaluate::{Metrics, Reconstruction, TestProjector, metrics};
+use crate::record::RunDir;
+use crate::setup::{RunOptions, Setup};
+use prism_domain::scene::Scene;
+use std::time::Instant;
+
+/// Reconstruct every channel of `scene` into `dir`; the scores when the scene has references.
+pub(crate) fn run(
+    config: &ClassicConfig,
+    scene: &Scene,
+    dir: &mut RunDir,
+    options: &RunOptions,
+) -> Result<Option<Metrics>> {
+    let observer = options.observer;
+    config.validate()?;
+    let setup = Setup::new(scene, Vec::new(), observer)?;
+    let iters = config.resolved_iterations();
+    let start = Instant::now();
+    let mut volumes = Vec::new();
+    for (c, ch) in scene.channels.iter().enumerate() {
+        observer.phase(
+            &format!("{} {}", config.method.name(), ch.label),
+            iters as u64,
+        );
+        let vol = reconstruct_channel(
+            config,
+            &scene.geometry,
+            scene.channel_projections(c),
+            &setup.views[c],
+            &mut |i| observer.progress(i as u64, ""),
+        )
+        .map_err(|e| e.under(&format!("channels[{c}]")))?;
+        dir.write_volume(&ch.label, &vol)?;
+        volumes.push(vol);
+    }
+    let wall_s = start.elapsed().as_secs_f64();
+    metrics(
+        scene,
+        &Reconstruction {
+            method: config.method.name(),
+            volumes: &volumes,
+            views: &setup.views,
+            wall_s,
+            unseen: setup.unseen,
+            projector: TestProjector::Reproject,
+        },
+        options.evaluation,
+    )
+}

@@ -1,0 +1,227 @@
+//! 4D-SG stage 2, the spectral stage, on a trained shared geometry ([`crate::methods::fourdsg::stage1`]): the curve
+//! model (GSC-Net, or the MLP ablation) predicts every Gaussian's raw density curve over the
+//! observed channels, `u⁽ᵐ⁾ = u⁽ᶜ⁾ + Δu⁽ᵐ⁾` with `Δu = b + net(û, τ)` (method `4dsg`); or, without
+//! a curve model, per-channel densities are fitted directly on the fixed geometry (method
+//! `4dsg-stage1`, the "no curve model" ablation).
+//!
+//! û is the conditioned common raw density (`condition_on_stage1`: centred on the median of the
+//! stage-1 raw densities, scaled by half their 10–90 % range) and b a learnable per-channel
+//! baseline started from the channels' mean attenuation ratios, so stage 2 does not start with
+//! every channel at the channel-mean density.
+//!
+//! With `stage2.basis` the spectral head is the basis-material head instead ([`crate::gaussians::spectral::basis`]): the
+//! Gaussians carry one density per basis material and the channels are formed by the physics.
+
+use crate::Result;
+use crate::device::upload;
+use crate::gaussians::finish::Trained;
+use crate::gaussians::host::{inverse_softplus, softplus};
+use crate::gaussians::spectral::{BasisHead, CurveFit};
+use crate::gaussians::train::Evaluator;
+use crate::gaussians::train::data::image;
+use crate::gaussians::train::{Journal, Stage, Supervision};
+use crate::gaussians::{GaussianConfig, GaussianMethod, GaussianModel, Learnable, World};
+use crate::methods::fourdsg::stage1::SharedGeometry;
+use burn::optim::AdamConfig;
+use burn::tensor::{Device, Tensor};
+use ndarray::Axis;
+use prism_domain::decompose::channel_specs;
+use prism_domain::observe::Level;
+use prism_domain::scene::Scene;
+use prism_gscnet::SpectralGrid;
+
+/// The spectral stage's result: the model (geometry and, with a curve model, the common raw
+/// density; with the basis head, the raw basis densities `[K, B]`), its raw densities per observed
+/// channel `[K, M]` and, with the basis head, the head.
+pub struct Spectral {
+    pub model: GaussianModel,
+    pub raw: Tensor<2>,
+    pub world: World,
+    pub basis: Option<BasisHead>,
+}
+
+impl Spectral {
+    /// The trained model as the run's finish renders it (the basis head is saved apart).
+    pub(crate) fn trained(self) -> Trained {
+        Trained::Shared {
+            model: self.model,
+            raw: self.raw,
+            world: self.world,
+        }
+    }
+}
+
+/// Train the spectral stage of `config` on `scene` (its observed channels) from `shared`.
+pub fn train_spectral(
+    config: &GaussianConfig,
+    scene: &Scene,
+    shared: SharedGeometry,
+    device: &Device,
+    journal: &mut Journal,
+) -> Result<Spectral> {
+    let geometry = &scene.geometry;
+    let m = scene.n_channels();
+    let SharedGeometry {
+        mut model,
+        world,
+        views: sviews,
+    } = shared;
+
+    // Every available channel at every training view.
+    let all_views: Vec<usize> = scene
+        .train_views()
+        .iter()
+        .copied()
+        .filter(|&v| (0..m).any(|c| scene.availability[[v, c]]))
+        .collect();
+    let mut images = Vec::new();
+    let mut columns = Vec::new();
+    for &v in &all_views {
+        let avail = scene.available_channels(v);
+        let mut img = Vec::new();
+        for &c in &avail {
+            img.extend(image(scene.channel_projections(c), v));
+        }
+        images.push(img);
+        columns.push((avail.len() < m).then_some(avail));
+    }
+    let sup = Supervision::new(geometry, &world, &all_views, images, columns, m, device);
+    let eval = scene.references.as_ref().map(|r| Evaluator {
+        grid: geometry.volume.clone(),
+        world,
+        references: (0..m)
+            .map(|c| r.index_axis(Axis(0), c).to_owned())
+            .collect(),
+    });
+    let ratios = channel_ratios(scene, &sviews);
+    let mut head = None;
+    let raw = match (config.method, &config.stage2.basis) {
+        (GaussianMethod::FourDsg, Some(cfg)) => {
+            let (specs, exact) = channel_specs(scene)?;
+            if !exact {
+                journal.observer.note(
+                    Level::Warning,
+                    "the scene does not record its channels' spectra: the basis head assumes the \
+                     default filtration for tube-voltage and mixed channels",
+                );
+            }
+            let h = BasisHead::new(cfg, &specs, &world, &device.clone().autodiff())?;
+            let start = h.initial_raw(&model.to_host().densities);
+            model.set_densities(upload(start, cfg.materials.len(), device));
+            let stage = Stage {
+                basis: Some(&h),
+                ..Stage::spectral(config, "basis", &geometry.volume, &world)
+            };
+            journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
+            let raw = h.channel_raw(&model);
+            head = Some(h);
+            raw
+        }
+        (GaussianMethod::FourDsg, None) if m >= 2 => {
+            let s2 = &config.stage2;
+            let tau: Vec<f32> = scene.channels.iter().map(|c| c.tau as f32).collect();
+            let grid = SpectralGrid::new(tau)?;
+            let ad = device.clone().autodiff();
+            let mut net = s2.curve_model.init(&grid, &ad, config.seed)?;
+            let u = sorted_finite(model.to_host().densities);
+            net.set_baseline(&spectral_baseline(&u, &ratios))?;
+            if s2.condition_on_stage1 {
+                let (lo, mid, hi) = (quantile(&u, 0.1), quantile(&u, 0.5), quantile(&u, 0.9));
+                net.set_density_conditioning(mid, ((hi - lo) / 2.0).max(0.1))?;
+            }
+            let mut fit = CurveFit {
+                net,
+                optim: AdamConfig::new().init(),
+                tau: grid.to_tensor(&ad),
+                lambda_curve: s2.lambda_curve,
+                lr: s2.lr_network,
+            };
+            let stage =
+                Stage::spectral(config, s2.curve_model.kind.name(), &geometry.volume, &world);
+            journal.train(&mut model, &sup, eval.as_ref(), &stage, Some(&mut fit))?;
+            fit.raw_densities(&model)?
+        }
+        _ => {
+            if config.method == GaussianMethod::FourDsg {
+                journal.observer.note(
+                    Level::Info,
+                    "one observed channel: no spectral axis, stage 2 is skipped and the stage-1 \
+                     densities are the result",
+                );
+            }
+            // Per-channel densities fitted directly on the fixed geometry, initialised from the
+            // common density scaled by each channel's mean line integral relative to the
+            // channels' average.
+            let common: Vec<f32> = model.to_host().densities;
+            let raw: Vec<f32> = common
+                .iter()
+                .flat_map(|&u| {
+                    let a = softplus(u as f64);
+                    ratios.iter().map(move |r| inverse_softplus(a * r) as f32)
+                })
+                .collect();
+            model.set_densities(upload(raw, m, device));
+            let stage = Stage {
+                iterations: config.density_iterations,
+                learn: Learnable::DENSITY,
+                ..Stage::spectral(config, "densities", &geometry.volume, &world)
+            };
+            journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
+            model.densities.value.clone()
+        }
+    };
+    Ok(Spectral {
+        model,
+        raw,
+        world,
+        basis: head,
+    })
+}
+
+/// The finite values of `v`, ascending.
+fn sorted_finite(mut v: Vec<f32>) -> Vec<f32> {
+    v.retain(|x| x.is_finite());
+    v.sort_by(f32::total_cmp);
+    v
+}
+
+/// The `q`-quantile (nearest rank) of ascending `sorted` (0 when empty).
+fn quantile(sorted: &[f32], q: f64) -> f32 {
+    let i = ((sorted.len().saturating_sub(1)) as f64 * q).round() as usize;
+    sorted.get(i).copied().unwrap_or(0.0)
+}
+
+/// Raw-density offsets b [M] that turn the structural densities into each channel's, for the
+/// curve model's baseline: softplus(ū + b_m) = r_m·softplus(ū) at the median ū of the ascending
+/// raw densities `sorted` (`ratios` from [`channel_ratios`]).
+fn spectral_baseline(sorted: &[f32], ratios: &[f64]) -> Vec<f32> {
+    let u = quantile(sorted, 0.5) as f64;
+    let a = softplus(u);
+    ratios
+        .iter()
+        .map(|&r| (inverse_softplus(a * r) - u) as f32)
+        .collect()
+}
+
+/// Mean line integral of each channel over the structural views, divided by the structural mean.
+fn channel_ratios(scene: &Scene, views: &[usize]) -> Vec<f64> {
+    let m = scene.n_channels();
+    let means: Vec<f64> = (0..m)
+        .map(|c| {
+            let p = scene.channel_projections(c);
+            let (sum, n) = views.iter().fold((0.0f64, 0usize), |(s, n), &v| {
+                let img = p.index_axis(Axis(0), v);
+                (
+                    s + img.iter().map(|&x| x as f64).sum::<f64>(),
+                    n + img.len(),
+                )
+            });
+            sum / n.max(1) as f64
+        })
+        .collect();
+    let mean = means.iter().sum::<f64>() / m as f64;
+    means
+        .iter()
+        .map(|&x| if mean > 0.0 && x > 0.0 { x / mean } else { 1.0 })
+        .collect()
+}
