@@ -23,8 +23,8 @@ here=$(cd "$(dirname "$0")/.." && pwd)
 cd "$here"
 
 # Short schedules: densification, evaluation and stage 2 all happen within them.
-gauss="--set iterations=60 --set init.n_points=1500 --set densify.from=20 --set densify.until=40
-       --set densify.every=20 --set eval_every=30"
+gauss="--set iterations=60 --set init.n_points=1500 --set densify.from=10 --set densify.until=50
+       --set densify.every=20 --set densify.grad_threshold=2.0e-6 --set eval_every=30"
 run_all() { # binary dir
     p=$1; d=$2
     rm -rf "$d"; mkdir -p "$d"

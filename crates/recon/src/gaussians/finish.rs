@@ -19,12 +19,16 @@ use serde::Serialize;
 pub(crate) enum Trained {
     /// R²-Gaussian: one model (and world) per observed channel.
     PerChannel(Vec<(GaussianModel, World)>),
-    /// One shared model with a raw density column `[K, M]` per observed channel (4D-SG).
-    Shared {
-        model: GaussianModel,
-        raw: Tensor<2>,
-        world: World,
-    },
+    /// One shared model with a raw density column per observed channel (4D-SG).
+    Shared(Box<SharedModel>),
+}
+
+/// A model whose Gaussians every channel shares, with the raw density column of each.
+pub(crate) struct SharedModel {
+    pub model: GaussianModel,
+    /// Raw densities `[K, M]`, one column per observed channel.
+    pub raw: Tensor<2>,
+    pub world: World,
 }
 
 impl Trained {
@@ -48,9 +52,9 @@ impl Trained {
                     options,
                 )
             }
-            Trained::Shared { model, raw, world } => {
-                let raw = raw.clone().narrow(1, c, 1);
-                render_views(model, raw, world, geometry, views, options)
+            Trained::Shared(s) => {
+                let raw = s.raw.clone().narrow(1, c, 1);
+                render_views(&s.model, raw, &s.world, geometry, views, options)
             }
         }
     }

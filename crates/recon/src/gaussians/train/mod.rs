@@ -125,16 +125,11 @@ impl<'a> Journal<'a> {
                 start = Some((trainer, progress));
             }
         }
-        let r = train(
-            self,
+        let at = StageStart {
             index,
-            model,
-            sup,
-            eval,
-            stage,
-            curve.as_deref_mut(),
-            start,
-        )?;
+            resumed: start,
+        };
+        let r = train(self, at, model, sup, eval, stage, curve.as_deref_mut())?;
         if let Some(ck) = &mut self.checkpoints {
             ck.finished(stage, model, curve.as_deref(), &r, self.log.saved())?;
         }
@@ -200,21 +195,26 @@ fn score(e: &Evaluator, t: &Trainer, stage: &Stage) -> Result<(f64, f64)> {
     }
 }
 
-/// Train `model` (and, in stage 2, `curve`) on `sup` for one stage, the `index`-th of the run,
-/// scoring against `eval` when given, from `start` (a checkpoint's trainer state and running
-/// sums) or from the beginning; records go to the journal's log, progress to its observer,
-/// state to its checkpoints.
-#[allow(clippy::too_many_arguments)]
+/// Where a stage starts: its index in the run's sequence of stages, and the saved trainer state
+/// and running sums it continues from (a checkpoint's), if any.
+struct StageStart {
+    index: usize,
+    resumed: Option<(TrainerState, Progress)>,
+}
+
+/// Train `model` (and, in stage 2, `curve`) on `sup` for one stage, from `at`, scoring against
+/// `eval` when given; records go to the journal's log, progress to its observer, state to its
+/// checkpoints.
 fn train(
     journal: &mut Journal,
-    index: usize,
+    at: StageStart,
     model: &mut GaussianModel,
     sup: &Supervision,
     eval: Option<&Evaluator>,
     stage: &Stage,
     curve: Option<&mut CurveFit>,
-    start: Option<(TrainerState, Progress)>,
 ) -> Result<StageReport> {
+    let StageStart { index, resumed } = at;
     let schedule = Schedule {
         iterations: stage.iterations,
         lr: stage.lr,
@@ -223,7 +223,7 @@ fn train(
         eval_every: stage.eval_every,
     };
     let mut trainer = Trainer::new(model, sup, stage, curve)?;
-    let mut p = match start {
+    let mut p = match resumed {
         Some((state, progress)) => {
             let file = journal
                 .checkpoints

@@ -14,7 +14,7 @@
 
 use crate::Result;
 use crate::device::upload;
-use crate::gaussians::finish::Trained;
+use crate::gaussians::finish::{SharedModel, Trained};
 use crate::gaussians::host::{inverse_softplus, softplus};
 use crate::gaussians::spectral::{BasisHead, CurveFit};
 use crate::gaussians::train::Evaluator;
@@ -43,11 +43,11 @@ pub struct Spectral {
 impl Spectral {
     /// The trained model as the run's finish renders it (the basis head is saved apart).
     pub(crate) fn trained(self) -> Trained {
-        Trained::Shared {
+        Trained::Shared(Box::new(SharedModel {
             model: self.model,
             raw: self.raw,
             world: self.world,
-        }
+        }))
     }
 }
 
