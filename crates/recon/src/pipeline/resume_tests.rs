@@ -3,12 +3,12 @@
 //! good state; mismatched resumes are refused.
 
 use super::gaussian_tests::{losses, three_channel_scene, tiny};
-use super::tests::scene;
 use super::run;
-use crate::record::RunDir;
-use crate::setup::{Checkpointing, RunOptions};
+use super::tests::scene;
 use crate::device::cpu_device;
 use crate::gaussians::{GaussianConfig, GaussianMethod};
+use crate::record::RunDir;
+use crate::setup::{Checkpointing, RunOptions};
 use crate::{Error, MethodConfig, Result};
 use prism_domain::observe::Observer;
 use prism_domain::scene::Scene;

@@ -3,9 +3,9 @@
 
 use super::*;
 use crate::algorithms::Window;
-use crate::methods::classic::{ClassicConfig, ClassicMethod};
 use crate::device::cpu_device;
 use crate::evaluate::Evaluation;
+use crate::methods::classic::{ClassicConfig, ClassicMethod};
 use ndarray::{Array2, Array3, Array4, Axis, stack};
 use prism_domain::geometry::{Beam, Detector, Geometry, VolumeGrid};
 use prism_domain::observe::Silent;
