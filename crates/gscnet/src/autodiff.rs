@@ -10,7 +10,7 @@ use burn::backend::autodiff::{
 use burn::backend::tensor::FloatTensor;
 use prism_kernel::autodiff::{backpropagate, inner, lift, record};
 
-use crate::ops::SpectralOps;
+use crate::ops::{ScanTensors, SpectralOps};
 
 #[derive(Debug)]
 struct ScanBackward;
@@ -19,15 +19,9 @@ impl<B: SpectralOps> Backward<B, 6> for ScanBackward {
     type State = ([FloatTensor<B>; 6], bool);
 
     fn backward(self, ops: Ops<Self::State, 6>, grads: &mut Gradients, _ck: &mut Checkpointer) {
-        backpropagate::<B, _, 6>(
-            ops,
-            grads,
-            |([x, delta, a_log, b, c, d], softplus), grad| {
-                let (g0, g1, g2, g3, g4, g5) =
-                    B::selective_scan_backward(x, delta, a_log, b, c, d, softplus, grad);
-                [g0, g1, g2, g3, g4, g5]
-            },
-        );
+        backpropagate::<B, _, 6>(ops, grads, |(inputs, softplus), grad| {
+            B::selective_scan_backward(ScanTensors::from_array(inputs), softplus, grad).into_array()
+        });
     }
 }
 
@@ -46,45 +40,24 @@ impl<B: SpectralOps> Backward<B, 3> for ConvBackward {
 }
 
 impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
-    fn selective_scan(
-        x: FloatTensor<Self>,
-        delta: FloatTensor<Self>,
-        a_log: FloatTensor<Self>,
-        b: FloatTensor<Self>,
-        c: FloatTensor<Self>,
-        d: FloatTensor<Self>,
-        softplus: bool,
-    ) -> FloatTensor<Self> {
+    fn selective_scan(inputs: ScanTensors<Self>, softplus: bool) -> FloatTensor<Self> {
         record::<B, C, _, _, 6>(
             ScanBackward,
-            [x, delta, a_log, b, c, d],
+            inputs.into_array(),
             |inputs| (inputs, softplus),
-            |[x, delta, a_log, b, c, d]| B::selective_scan(x, delta, a_log, b, c, d, softplus),
+            |inputs| B::selective_scan(ScanTensors::from_array(inputs), softplus),
         )
     }
 
     fn selective_scan_backward(
-        x: FloatTensor<Self>,
-        delta: FloatTensor<Self>,
-        a_log: FloatTensor<Self>,
-        b: FloatTensor<Self>,
-        c: FloatTensor<Self>,
-        d: FloatTensor<Self>,
+        inputs: ScanTensors<Self>,
         softplus: bool,
         grad: FloatTensor<Self>,
-    ) -> (
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-    ) {
-        let [x, delta, a_log, b, c, d, grad] = inner([x, delta, a_log, b, c, d, grad]);
-        let (g0, g1, g2, g3, g4, g5) =
-            B::selective_scan_backward(x, delta, a_log, b, c, d, softplus, grad);
-        let [g0, g1, g2, g3, g4, g5] = lift([g0, g1, g2, g3, g4, g5]);
-        (g0, g1, g2, g3, g4, g5)
+    ) -> ScanTensors<Self> {
+        let inputs = ScanTensors::from_array(inner(inputs.into_array()));
+        let [grad] = inner([grad]);
+        let g = B::selective_scan_backward(inputs, softplus, grad);
+        ScanTensors::from_array(lift(g.into_array()))
     }
 
     fn spectral_conv_silu(

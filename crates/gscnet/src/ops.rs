@@ -6,45 +6,64 @@
 // The NdArray selector names burn-ndarray, deprecated in Burn 0.22 (Flex is its successor).
 #![allow(deprecated)]
 
-use burn::backend::{Backend, Dispatch, backend_extension, tensor::FloatTensor};
+use burn::backend::{Backend, Dispatch, ExtensionType, backend_extension, tensor::FloatTensor};
 use burn::tensor::Tensor;
+
+/// The tensors of a selective scan: what [`SpectralOps::selective_scan`] takes and
+/// [`SpectralOps::selective_scan_backward`] returns as their gradients (same shapes).
+#[derive(ExtensionType)]
+pub struct ScanTensors<B: Backend> {
+    /// Token inputs x `[K, M, E]` (K Gaussians, M spectral positions, E channels).
+    pub x: FloatTensor<B>,
+    /// Steps Δ `[K, M, E]` (Δ > 0), or raw steps z with Δ = softplus(z) when `softplus` is set.
+    pub delta: FloatTensor<B>,
+    /// The state matrix as A_log `[E, N]`, `A = −exp(A_log)` (per channel and state).
+    pub a_log: FloatTensor<B>,
+    /// Input projections B `[K, M, N]`.
+    pub b: FloatTensor<B>,
+    /// Output projections C `[K, M, N]`.
+    pub c: FloatTensor<B>,
+    /// Skip weights D `[E]`.
+    pub d: FloatTensor<B>,
+}
+
+impl<B: Backend> ScanTensors<B> {
+    /// The six tensors in field order (x, Δ, A_log, B, C, D).
+    pub fn into_array(self) -> [FloatTensor<B>; 6] {
+        [self.x, self.delta, self.a_log, self.b, self.c, self.d]
+    }
+
+    /// The inverse of [`ScanTensors::into_array`].
+    pub fn from_array([x, delta, a_log, b, c, d]: [FloatTensor<B>; 6]) -> Self {
+        Self {
+            x,
+            delta,
+            a_log,
+            b,
+            c,
+            d,
+        }
+    }
+}
 
 /// Fused spectral kernels. Backward kernels are ops of their own so every backend (and a later
 /// CubeCL port) provides them next to the forward.
 #[backend_extension(NdArray: cfg(feature = "ndarray"), Flex: cfg(feature = "flex"), Autodiff)]
 pub trait SpectralOps: Backend {
-    /// Selective scan: x, Δ `[K, M, E]`, A_log `[E, N]`, B, C `[K, M, N]`, D `[E]` → `[K, M, E]`.
-    /// With `softplus`, `delta` holds raw steps z and Δ = softplus(z).
+    /// Selective scan of `inputs` → y `[K, M, E]`. With `softplus`, `inputs.delta` holds raw
+    /// steps z and Δ = softplus(z).
     fn selective_scan(
-        x: FloatTensor<Self>,
-        delta: FloatTensor<Self>,
-        a_log: FloatTensor<Self>,
-        b: FloatTensor<Self>,
-        c: FloatTensor<Self>,
-        d: FloatTensor<Self>,
+        #[extension_type] inputs: ScanTensors<Self>,
         softplus: bool,
     ) -> FloatTensor<Self>;
 
-    /// Gradients `(x, Δ, A_log, B, C, D)` of `⟨grad, selective_scan(..)⟩` (Δ: of the raw step
-    /// z when `softplus`).
-    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
+    /// Gradients of `⟨grad, selective_scan(..)⟩` with respect to every input (Δ: of the raw
+    /// step z when `softplus`).
     fn selective_scan_backward(
-        x: FloatTensor<Self>,
-        delta: FloatTensor<Self>,
-        a_log: FloatTensor<Self>,
-        b: FloatTensor<Self>,
-        c: FloatTensor<Self>,
-        d: FloatTensor<Self>,
+        #[extension_type] inputs: ScanTensors<Self>,
         softplus: bool,
         grad: FloatTensor<Self>,
-    ) -> (
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-    );
+    ) -> ScanTensors<Self>;
 
     /// SiLU(depthwise centred conv over M): u `[K, M, E]`, w `[E, J]`, bias `[E]` → `[K, M, E]`.
     fn spectral_conv_silu(
@@ -76,15 +95,15 @@ pub(crate) fn fused_selective_scan(
     if !crate::composed::has_fused_kernels(&x.device()) {
         return crate::composed::selective_scan(x, delta, a_log, b, c, d, softplus);
     }
-    Tensor::from_dispatch(Dispatch::selective_scan(
-        x.into_dispatch(),
-        delta.into_dispatch(),
-        a_log.into_dispatch(),
-        b.into_dispatch(),
-        c.into_dispatch(),
-        d.into_dispatch(),
-        softplus,
-    ))
+    let inputs = ScanTensors {
+        x: x.into_dispatch(),
+        delta: delta.into_dispatch(),
+        a_log: a_log.into_dispatch(),
+        b: b.into_dispatch(),
+        c: c.into_dispatch(),
+        d: d.into_dispatch(),
+    };
+    Tensor::from_dispatch(Dispatch::selective_scan(inputs, softplus))
 }
 
 /// The fused depthwise convolution + SiLU (shapes checked by the caller,

@@ -11,17 +11,18 @@ use burn::backend::autodiff::{
     grads::Gradients,
     ops::{Backward, Ops},
 };
-use burn::backend::tensor::FloatTensor;
+use burn::backend::{Backend, tensor::FloatTensor};
 use prism_kernel::autodiff::{backpropagate, inner, lift, record};
 
 use crate::camera::Camera;
-use crate::ops::GaussianOps;
+use crate::ops::{GaussianOps, GaussianTensors};
 use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
 
 #[derive(Debug)]
 struct ProjectBackward;
 
-/// The five differentiable inputs, the prepared state, cameras and options.
+/// The five differentiable inputs (means, scales, rotations, densities, screen), the prepared
+/// state, cameras and options.
 type ProjectState<B> = (
     [FloatTensor<B>; 5],
     FloatTensor<B>,
@@ -29,16 +30,34 @@ type ProjectState<B> = (
     ProjectOptions,
 );
 
+/// The differentiable inputs of a projection as one array: the Gaussians, then the screen offsets.
+fn with_screen<B: Backend>(
+    gaussians: GaussianTensors<B>,
+    screen: FloatTensor<B>,
+) -> [FloatTensor<B>; 5] {
+    let [means, scales, rotations, densities] = gaussians.into_array();
+    [means, scales, rotations, densities, screen]
+}
+
+/// The inverse of [`with_screen`].
+fn split_screen<B: Backend>(
+    [means, scales, rotations, densities, screen]: [FloatTensor<B>; 5],
+) -> (GaussianTensors<B>, FloatTensor<B>) {
+    (
+        GaussianTensors::from_array([means, scales, rotations, densities]),
+        screen,
+    )
+}
+
 impl<B: GaussianOps> Backward<B, 5> for ProjectBackward {
     type State = ProjectState<B>;
 
     fn backward(self, ops: Ops<Self::State, 5>, grads: &mut Gradients, _ck: &mut Checkpointer) {
         backpropagate::<B, _, 5>(ops, grads, |(x, prepared, cameras, options), grad| {
-            let [means, scales, rotations, densities, screen] = x;
-            let (a, b, c, d, e) = B::gaussian_project_backward(
-                means, scales, rotations, densities, screen, prepared, cameras, options, grad,
-            );
-            [a, b, c, d, e]
+            let (gaussians, screen) = split_screen(x);
+            let (g, g_screen) =
+                B::gaussian_project_backward(gaussians, screen, prepared, cameras, options, grad);
+            with_screen(g, g_screen)
         });
     }
 }
@@ -51,39 +70,27 @@ impl<B: GaussianOps> Backward<B, 4> for VoxelizeBackward {
 
     fn backward(self, ops: Ops<Self::State, 4>, grads: &mut Gradients, _ck: &mut Checkpointer) {
         backpropagate::<B, _, 4>(ops, grads, |(x, grid, options), grad| {
-            let [means, scales, rotations, densities] = x;
-            let (a, b, c, d) = B::gaussian_voxelize_backward(
-                means, scales, rotations, densities, grid, options, grad,
-            );
-            [a, b, c, d]
+            B::gaussian_voxelize_backward(GaussianTensors::from_array(x), grid, options, grad)
+                .into_array()
         });
     }
 }
 
 impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
     fn gaussian_project_prepare(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         screen: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
     ) -> FloatTensor<Self> {
-        let [means, scales, rotations, densities, screen] =
-            inner([means, scales, rotations, densities, screen]);
-        let prepared = B::gaussian_project_prepare(
-            means, scales, rotations, densities, screen, cameras, options,
-        );
+        let (gaussians, screen) = split_screen(inner(with_screen(gaussians, screen)));
+        let prepared = B::gaussian_project_prepare(gaussians, screen, cameras, options);
         let [prepared] = lift([prepared]);
         prepared
     }
 
     fn gaussian_project(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         screen: FloatTensor<Self>,
         prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
@@ -93,73 +100,52 @@ impl<B: GaussianOps, C: CheckpointStrategy> GaussianOps for Autodiff<B, C> {
         let saved = (prepared.clone(), cameras.clone(), options);
         record::<B, C, _, _, 5>(
             ProjectBackward,
-            [means, scales, rotations, densities, screen],
+            with_screen(gaussians, screen),
             move |x| (x, saved.0, saved.1, saved.2),
-            |[a, b, c, d, e]| B::gaussian_project(a, b, c, d, e, prepared, cameras, options),
+            |x| {
+                let (gaussians, screen) = split_screen(x);
+                B::gaussian_project(gaussians, screen, prepared, cameras, options)
+            },
         )
     }
 
     fn gaussian_project_backward(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         screen: FloatTensor<Self>,
         prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
         grad: FloatTensor<Self>,
-    ) -> (
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-    ) {
-        let [means, scales, rotations, densities, screen, prepared, grad] =
-            inner([means, scales, rotations, densities, screen, prepared, grad]);
-        let (a, b, c, d, e) = B::gaussian_project_backward(
-            means, scales, rotations, densities, screen, prepared, cameras, options, grad,
-        );
-        let [a, b, c, d, e] = lift([a, b, c, d, e]);
-        (a, b, c, d, e)
+    ) -> (GaussianTensors<Self>, FloatTensor<Self>) {
+        let [prepared, grad] = inner([prepared, grad]);
+        let (gaussians, screen) = split_screen(inner(with_screen(gaussians, screen)));
+        let (g, g_screen) =
+            B::gaussian_project_backward(gaussians, screen, prepared, cameras, options, grad);
+        split_screen(lift(with_screen(g, g_screen)))
     }
 
     fn gaussian_voxelize(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         grid: VoxelGrid,
         options: VoxelizeOptions,
     ) -> FloatTensor<Self> {
         record::<B, C, _, _, 4>(
             VoxelizeBackward,
-            [means, scales, rotations, densities],
+            gaussians.into_array(),
             |x| (x, grid, options),
-            |[a, b, c, d]| B::gaussian_voxelize(a, b, c, d, grid, options),
+            |x| B::gaussian_voxelize(GaussianTensors::from_array(x), grid, options),
         )
     }
 
     fn gaussian_voxelize_backward(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         grid: VoxelGrid,
         options: VoxelizeOptions,
         grad: FloatTensor<Self>,
-    ) -> (
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-    ) {
-        let [means, scales, rotations, densities, grad] =
-            inner([means, scales, rotations, densities, grad]);
-        let (a, b, c, d) =
-            B::gaussian_voxelize_backward(means, scales, rotations, densities, grid, options, grad);
-        let [a, b, c, d] = lift([a, b, c, d]);
-        (a, b, c, d)
+    ) -> GaussianTensors<Self> {
+        let gaussians = GaussianTensors::from_array(inner(gaussians.into_array()));
+        let [grad] = inner([grad]);
+        let g = B::gaussian_voxelize_backward(gaussians, grid, options, grad);
+        GaussianTensors::from_array(lift(g.into_array()))
     }
 }

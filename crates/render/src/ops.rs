@@ -17,6 +17,47 @@ use crate::camera::Camera;
 use crate::error::{RenderError, Result};
 use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
 
+pub use tensors::GaussianTensors;
+
+/// [`GaussianTensors`] in a module of its own: the `ExtensionType` derive's Fusion code names
+/// `Result` unqualified, which must be the standard one (this module's is [`crate::Result`]).
+mod tensors {
+    use burn::backend::{Backend, ExtensionType, tensor::FloatTensor};
+
+    /// The Gaussian parameters of one op call as backend tensors (layouts in [`crate::ops`]):
+    /// what every op of [`super::GaussianOps`] takes, and what the backward ops return as the
+    /// parameters' gradients (same shapes).
+    #[derive(ExtensionType)]
+    #[extension_type(fusion: cfg(feature = "fusion"))]
+    pub struct GaussianTensors<B: Backend> {
+        /// Centres `[K, 3]` (world length units).
+        pub means: FloatTensor<B>,
+        /// Standard deviations `[K, 3]` along the rotated axes (length units, positive).
+        pub scales: FloatTensor<B>,
+        /// Quaternions `[K, 4]` (`w, x, y, z`, raw: the ops normalise them).
+        pub rotations: FloatTensor<B>,
+        /// Densities `[K, M]`, one column per channel sharing the geometry.
+        pub densities: FloatTensor<B>,
+    }
+
+    impl<B: Backend> GaussianTensors<B> {
+        /// The four tensors in field order (means, scales, rotations, densities).
+        pub fn into_array(self) -> [FloatTensor<B>; 4] {
+            [self.means, self.scales, self.rotations, self.densities]
+        }
+
+        /// The inverse of [`GaussianTensors::into_array`].
+        pub fn from_array([means, scales, rotations, densities]: [FloatTensor<B>; 4]) -> Self {
+            Self {
+                means,
+                scales,
+                rotations,
+                densities,
+            }
+        }
+    }
+}
+
 /// Differentiable Gaussian projection and voxelization. Backward kernels are ops of their own so
 /// every backend (CPU: [`crate::cpu`]; wgpu: `crate::cube`) provides them next to the forward.
 ///
@@ -36,91 +77,63 @@ pub trait GaussianOps: Backend {
     /// The prepared state of every view and Gaussian for [`GaussianOps::gaussian_project`] and
     /// [`GaussianOps::gaussian_project_backward`] (CPU backends: `[V, K, cpu::PREPARED_WIDTH]`,
     /// see [`crate::cpu::project_prepare`]). Not differentiable.
-    #[fusion(dtype = means, shape = fusion_shapes::prepared(means, cameras, options))]
+    #[fusion(
+        dtype = gaussians.means.dtype,
+        shape = fusion_shapes::prepared(&gaussians.means.shape, cameras, options)
+    )]
     fn gaussian_project_prepare(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        #[extension_type] gaussians: GaussianTensors<Self>,
         screen: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
     ) -> FloatTensor<Self>;
 
     /// Line-integral images `[V, M, rows, cols]` of the Gaussians in every camera.
-    #[allow(clippy::too_many_arguments)]
-    #[fusion(dtype = means, shape = fusion_shapes::images(densities, cameras))]
+    #[fusion(
+        dtype = gaussians.means.dtype,
+        shape = fusion_shapes::images(&gaussians.densities.shape, cameras)
+    )]
     fn gaussian_project(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        #[extension_type] gaussians: GaussianTensors<Self>,
         screen: FloatTensor<Self>,
         prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
     ) -> FloatTensor<Self>;
 
-    /// Gradients `(means, scales, rotations, densities, screen)` of `⟨grad, project(..)⟩`.
-    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
-    #[fusion(meta = |means, scales, rotations, densities, screen, _prepared, _cameras, _options, _grad| (
-        means.clone(),
-        scales.clone(),
-        rotations.clone(),
-        densities.clone(),
+    /// Gradients of `⟨grad, project(..)⟩` with respect to the Gaussians and the screen offsets.
+    #[fusion(meta = |gaussians, screen, _prepared, _cameras, _options, _grad| (
+        gaussians.clone(),
         screen.clone(),
     ))]
     fn gaussian_project_backward(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        #[extension_type] gaussians: GaussianTensors<Self>,
         screen: FloatTensor<Self>,
         prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
         grad: FloatTensor<Self>,
-    ) -> (
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-    );
+    ) -> (GaussianTensors<Self>, FloatTensor<Self>);
 
     /// Density volumes `[M, nz, ny, nx]` on `grid`.
-    #[fusion(dtype = means, shape = fusion_shapes::volumes(densities, grid))]
+    #[fusion(
+        dtype = gaussians.means.dtype,
+        shape = fusion_shapes::volumes(&gaussians.densities.shape, grid)
+    )]
     fn gaussian_voxelize(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        #[extension_type] gaussians: GaussianTensors<Self>,
         grid: VoxelGrid,
         options: VoxelizeOptions,
     ) -> FloatTensor<Self>;
 
-    /// Gradients `(means, scales, rotations, densities)` of `⟨grad, voxelize(..)⟩`.
-    #[allow(clippy::type_complexity)]
-    #[fusion(meta = |means, scales, rotations, densities, _grid, _options, _grad| (
-        means.clone(),
-        scales.clone(),
-        rotations.clone(),
-        densities.clone(),
-    ))]
+    /// Gradients of `⟨grad, voxelize(..)⟩` with respect to the Gaussians.
+    #[fusion(meta = |gaussians, _grid, _options, _grad| gaussians.clone())]
     fn gaussian_voxelize_backward(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        #[extension_type] gaussians: GaussianTensors<Self>,
         grid: VoxelGrid,
         options: VoxelizeOptions,
         grad: FloatTensor<Self>,
-    ) -> (
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-    );
+    ) -> GaussianTensors<Self>;
 }
 
 /// Output shapes of the ops, known from the inputs' shapes and the host arguments (Burn's
@@ -165,6 +178,16 @@ pub struct Gaussians {
 }
 
 impl Gaussians {
+    /// The four tensors as the ops' [`GaussianTensors`].
+    fn into_dispatch(self) -> GaussianTensors<Dispatch> {
+        GaussianTensors {
+            means: self.means.into_dispatch(),
+            scales: self.scales.into_dispatch(),
+            rotations: self.rotations.into_dispatch(),
+            densities: self.densities.into_dispatch(),
+        }
+    }
+
     /// Number of Gaussians K.
     pub fn len(&self) -> usize {
         self.means.dims()[0]
@@ -312,21 +335,14 @@ pub fn project(
         }
         None => Tensor::<3>::zeros([v, k, 2], &gaussians.means.device()),
     };
-    let g = gaussians.clone();
     let prepared = Dispatch::gaussian_project_prepare(
-        g.means.clone().into_dispatch(),
-        g.scales.clone().into_dispatch(),
-        g.rotations.clone().into_dispatch(),
-        g.densities.clone().into_dispatch(),
+        gaussians.clone().into_dispatch(),
         screen.clone().into_dispatch(),
         cameras.to_vec(),
         *options,
     );
     Ok(Tensor::from_dispatch(Dispatch::gaussian_project(
-        g.means.into_dispatch(),
-        g.scales.into_dispatch(),
-        g.rotations.into_dispatch(),
-        g.densities.into_dispatch(),
+        gaussians.clone().into_dispatch(),
         screen.into_dispatch(),
         prepared,
         cameras.to_vec(),
@@ -359,12 +375,8 @@ pub fn voxelize(
     gaussians.validate()?;
     grid.validate()?;
     options.validate()?;
-    let g = gaussians.clone();
     Ok(Tensor::from_dispatch(Dispatch::gaussian_voxelize(
-        g.means.into_dispatch(),
-        g.scales.into_dispatch(),
-        g.rotations.into_dispatch(),
-        g.densities.into_dispatch(),
+        gaussians.clone().into_dispatch(),
         *grid,
         *options,
     )))

@@ -203,7 +203,8 @@ impl Column {
         out: &mut [f32],
     ) {
         use std::arch::x86_64::*;
-        let (v0, lo, hi) = self.blend(img, rp, line);
+        let span = self.blend(img, rp, line);
+        let LineSpan { v0, lo, hi } = span;
         let w = scale * self.weight;
         let end = self.j1 + 1;
         assert!(end <= out.len() && line.len() == (hi - lo) as usize + 2);
@@ -237,14 +238,13 @@ impl Column {
             }
             j += LANES;
         }
-        self.tail(v0, lo, hi, w, line, out, j);
+        self.tail(span, w, line, out, j);
     }
 
     /// Blend the two detector columns around `u` over the rows the column reaches into `line`;
-    /// returns the padded row of voxel 0 and the clamp range `[lo, hi]` of the lower row (line
-    /// entry 0 is row `lo`).
+    /// returns where the voxels fall on it.
     #[inline(always)]
-    fn blend(&self, img: &[f32], rp: usize, line: &mut Vec<f32>) -> (f32, i32, i32) {
+    fn blend(&self, img: &[f32], rp: usize, line: &mut Vec<f32>) -> LineSpan {
         // Padded coordinates: U = u + 1 ∈ (0, cols + 1), V = v + 1 ∈ (0, rows + 1).
         let cp = img.len() / rp;
         let uu = self.u + 1.0;
@@ -261,13 +261,14 @@ impl Column {
         let b = &img[(iu + 1) * rp + r0..=(iu + 1) * rp + r1];
         line.clear();
         line.extend(a.iter().zip(b).map(|(&a, &b)| a + gu * (b - a)));
-        (v0, lo, hi)
+        LineSpan { v0, lo, hi }
     }
 
-    /// Voxels `from..=j1`, one at a time.
-    #[allow(clippy::too_many_arguments)]
+    /// Voxels `from..=j1`, one at a time: `out[j] += w · line(v_j)` with `line` blended by
+    /// [`Column::blend`] into `span`.
     #[inline(always)]
-    fn tail(&self, v0: f32, lo: i32, hi: i32, w: f32, line: &[f32], out: &mut [f32], from: usize) {
+    fn tail(&self, span: LineSpan, w: f32, line: &[f32], out: &mut [f32], from: usize) {
+        let LineSpan { v0, lo, hi } = span;
         for (j, o) in out.iter_mut().enumerate().take(self.j1 + 1).skip(from) {
             let v = v0 + j as f32 * self.dv;
             let q = floorish(v).clamp(lo, hi);
@@ -287,9 +288,19 @@ impl Column {
         line: &mut Vec<f32>,
         out: &mut [f32],
     ) {
-        let (v0, lo, hi) = self.blend(img, rp, line);
-        self.tail(v0, lo, hi, scale * self.weight, line, out, self.j0);
+        let span = self.blend(img, rp, line);
+        self.tail(span, scale * self.weight, line, out, self.j0);
     }
+}
+
+/// Where a column's voxels fall on its blended detector line ([`Column::blend`]): voxel `j` at
+/// padded row `v0 + j·dv`, its lower neighbour row clamped to `[lo, hi]`; line entry 0 is row
+/// `lo`.
+#[derive(Clone, Copy, Debug)]
+struct LineSpan {
+    v0: f32,
+    lo: i32,
+    hi: i32,
 }
 
 /// Voxels per AVX2 step.

@@ -4,13 +4,14 @@
 #[cfg(any(feature = "flex", feature = "ndarray"))]
 use prism_kernel::cpu::CpuFloat;
 
-/// The six scan inputs of a CPU backend as [`crate::cpu::scan::ScanInputs`].
+/// The scan tensors of a CPU backend as [`crate::cpu::scan::ScanInputs`].
 #[cfg(any(feature = "flex", feature = "ndarray"))]
 fn with_scan_inputs<B: CpuFloat, R>(
-    inputs: [&burn::backend::tensor::FloatTensor<B>; 6],
+    t: &crate::ops::ScanTensors<B>,
     softplus: bool,
     f: impl FnOnce(&crate::cpu::scan::ScanInputs) -> R,
 ) -> R {
+    let inputs = [&t.x, &t.delta, &t.a_log, &t.b, &t.c, &t.d];
     let (xd, ad) = (B::dims(inputs[0]), B::dims(inputs[2]));
     let dims = crate::cpu::scan::ScanDims {
         k: xd[0],
@@ -49,52 +50,31 @@ macro_rules! impl_cpu_spectral_ops {
     ($backend:ty) => {
         impl $crate::ops::SpectralOps for $backend {
             fn selective_scan(
-                x: FloatTensor<Self>,
-                delta: FloatTensor<Self>,
-                a_log: FloatTensor<Self>,
-                b: FloatTensor<Self>,
-                c: FloatTensor<Self>,
-                d: FloatTensor<Self>,
+                inputs: $crate::ops::ScanTensors<Self>,
                 softplus: bool,
             ) -> FloatTensor<Self> {
-                let y = with_scan_inputs::<Self, _>(
-                    [&x, &delta, &a_log, &b, &c, &d],
-                    softplus,
-                    $crate::cpu::scan::scan_forward,
-                );
-                Self::tensor(y, Self::dims(&x))
+                let y =
+                    with_scan_inputs::<Self, _>(&inputs, softplus, $crate::cpu::scan::scan_forward);
+                Self::tensor(y, Self::dims(&inputs.x))
             }
 
             fn selective_scan_backward(
-                x: FloatTensor<Self>,
-                delta: FloatTensor<Self>,
-                a_log: FloatTensor<Self>,
-                b: FloatTensor<Self>,
-                c: FloatTensor<Self>,
-                d: FloatTensor<Self>,
+                inputs: $crate::ops::ScanTensors<Self>,
                 softplus: bool,
                 grad: FloatTensor<Self>,
-            ) -> (
-                FloatTensor<Self>,
-                FloatTensor<Self>,
-                FloatTensor<Self>,
-                FloatTensor<Self>,
-                FloatTensor<Self>,
-                FloatTensor<Self>,
-            ) {
+            ) -> $crate::ops::ScanTensors<Self> {
                 let gy = Self::values(&grad);
-                let g =
-                    with_scan_inputs::<Self, _>([&x, &delta, &a_log, &b, &c, &d], softplus, |s| {
-                        $crate::cpu::scan::scan_backward(s, &gy)
-                    });
-                (
-                    Self::tensor(g.x, Self::dims(&x)),
-                    Self::tensor(g.delta, Self::dims(&delta)),
-                    Self::tensor(g.a_log, Self::dims(&a_log)),
-                    Self::tensor(g.b, Self::dims(&b)),
-                    Self::tensor(g.c, Self::dims(&c)),
-                    Self::tensor(g.d, Self::dims(&d)),
-                )
+                let g = with_scan_inputs::<Self, _>(&inputs, softplus, |s| {
+                    $crate::cpu::scan::scan_backward(s, &gy)
+                });
+                $crate::ops::ScanTensors {
+                    x: Self::tensor(g.x, Self::dims(&inputs.x)),
+                    delta: Self::tensor(g.delta, Self::dims(&inputs.delta)),
+                    a_log: Self::tensor(g.a_log, Self::dims(&inputs.a_log)),
+                    b: Self::tensor(g.b, Self::dims(&inputs.b)),
+                    c: Self::tensor(g.c, Self::dims(&inputs.c)),
+                    d: Self::tensor(g.d, Self::dims(&inputs.d)),
+                }
             }
 
             fn spectral_conv_silu(

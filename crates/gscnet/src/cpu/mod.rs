@@ -14,11 +14,9 @@ macro_rules! dispatched {
     ($(#[$doc:meta])* fn $name:ident => $kernel:ident($($arg:ident: $ty:ty),* $(,)?)
         $(-> $ret:ty)?) => {
         $(#[$doc])*
-        #[allow(clippy::too_many_arguments)]
         fn $name(wide: bool, $($arg: $ty),*) $(-> $ret)? {
             #[cfg(target_arch = "x86_64")]
             #[target_feature(enable = "avx2,fma")]
-            #[allow(clippy::too_many_arguments)]
             fn avx2($($arg: $ty),*) $(-> $ret)? {
                 $kernel::<$crate::cpu::math::Fused>($($arg),*)
             }

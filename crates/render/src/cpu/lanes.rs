@@ -18,14 +18,11 @@ pub(crate) use prism_kernel::simd::has_avx2_fma as has_avx2;
 macro_rules! dispatched {
     ($(#[$doc:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $body:block) => {
         $(#[$doc])*
-        #[allow(clippy::too_many_arguments)]
         $vis fn $name($($arg: $ty),*) {
             #[inline(always)]
-            #[allow(clippy::too_many_arguments)]
             fn body<L: Lanes>($($arg: $ty),*) $body
             #[cfg(target_arch = "x86_64")]
             #[target_feature(enable = "avx2,fma")]
-            #[allow(clippy::too_many_arguments)]
             fn wide($($arg: $ty),*) {
                 body::<Avx2>($($arg),*)
             }
@@ -42,6 +39,24 @@ pub(crate) use dispatched;
 
 /// Lanes per vector.
 pub(crate) const LANES: usize = 8;
+
+/// One tile's upstream gradient as the backward row kernels read it: `values` is `[M][tile
+/// elements]` (every row stored lane-block wide, zeros past the edges), `finite` says whether all
+/// of it is finite (then the kernels skip the select that keeps non-finite products out of their
+/// sums, see [`Lanes::zero_outside`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct TileGrad<'a> {
+    pub(crate) values: &'a [f32],
+    pub(crate) finite: bool,
+}
+
+impl<'a> TileGrad<'a> {
+    /// The tile's gradient `values`, checked for non-finite entries.
+    pub(crate) fn new(values: &'a [f32]) -> Self {
+        let finite = values.iter().all(|v| v.is_finite());
+        Self { values, finite }
+    }
+}
 
 /// An 8-lane f32 vector. Arithmetic is lane-wise IEEE f32; `mul_add` is fused for [`Avx2`] and
 /// two roundings for [`Portable`].

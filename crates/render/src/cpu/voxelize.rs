@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use super::GaussianSlices;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::Avx2;
-use super::lanes::{LANES, Lanes, Portable, dispatched, has_avx2};
+use super::lanes::{LANES, Lanes, Portable, TileGrad, dispatched, has_avx2};
 use super::tiles::{Bins, TileBox, tile_span};
 use crate::gaussian_math::{self as gm, voxel_backward};
 use crate::options::{VoxelGrid, VoxelizeOptions};
@@ -250,8 +250,7 @@ dispatched! {
 dispatched! {
     /// Backward partial sums of splat `s` over one tile into `acc`
     /// (`[S_0..S_{M-1}, Σ wG d (3), Σ wG d dᵀ packed xx, xy, xz, yy, yz, zz]`, `w = Σ_c ρ_c g_c`,
-    /// `S_c = Σ g_c G`) from the tile's upstream gradient `gt` (`[M][TILE_VOXELS]`; `finite`:
-    /// all of it finite).
+    /// `S_c = Σ g_c G`) from the tile's upstream gradient `grad` (`[M][TILE_VOXELS]`).
     ///
     /// Lane accumulators of `wG`, `wG dy`, `wG dz`, `wG dy²`, `wG dy dz`, `wG dz²` (and `g_c G`);
     /// a lane's `dx` is fixed, so the x moments follow at the reduction (`Σ wG dx = Σ_lanes
@@ -261,12 +260,12 @@ dispatched! {
         s: &VoxSplat,
         t: &TileCentres,
         cut2: f32,
-        gt: &[f32],
-        finite: bool,
+        grad: TileGrad<'_>,
         dens: &[f32],
         lanes: &mut [[f32; TILE]],
         acc: &mut [f64],
     ) {
+        let TileGrad { values: gt, finite } = grad;
         let m = dens.len();
         let single = m == 1;
         acc.fill(0.0);
@@ -408,7 +407,7 @@ pub fn voxelize_backward(
                     }
                 }
             }
-            let finite = gt.iter().all(|v| v.is_finite());
+            let tile_grad = TileGrad::new(&gt);
             let tc = TileCentres::new(grid, tb);
             let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
             let mut lanes = vec![[0.0f32; TILE]; m];
@@ -417,7 +416,7 @@ pub fn voxelize_backward(
                 let acc = &mut out[j * stride..(j + 1) * stride];
                 let Some(s) = &splats[gi] else { continue };
                 let dens = &g.densities[m * gi..m * gi + m];
-                voxel_backward_sums(s, &tc, cut2, &gt, finite, dens, &mut lanes, acc);
+                voxel_backward_sums(s, &tc, cut2, tile_grad, dens, &mut lanes, acc);
             }
         });
     let results: Vec<Option<([f64; 10], Vec<f64>)>> = (0..k)

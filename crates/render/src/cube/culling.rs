@@ -76,18 +76,18 @@ pub const EMPTY_LO: f32 = 3.0e38;
 /// they are for Gaussians initialised in raster order (Prism's FDK initialisation) and for the
 /// clones densification appends in parent order.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 pub fn step_bounds_kernel(
     records: &Tensor<f32>,
     out: &mut Tensor<f32>,
     k: u32,
     sets: u32,
-    #[comptime] width: usize,
-    #[comptime] axes: usize,
-    #[comptime] lo_at: usize,
-    #[comptime] hi_at: usize,
-    #[comptime] axis_step: usize,
+    #[comptime] layout: BoxLayout,
 ) {
+    let width = comptime![layout.width];
+    let axes = comptime![layout.axes];
+    let lo_at = comptime![layout.lo_at];
+    let hi_at = comptime![layout.hi_at];
+    let axis_step = comptime![layout.axis_step];
     let kk = k as usize;
     let steps = (kk + STEP - 1) / STEP;
     let idx = ABSOLUTE_POS;
@@ -124,14 +124,20 @@ pub fn step_bounds_kernel(
     }
 }
 
-/// Where a record kind keeps its box, for [`step_bounds`].
-#[derive(Clone, Copy)]
-pub(super) struct BoxLayout {
-    width: usize,
-    axes: usize,
-    lo_at: usize,
-    hi_at: usize,
-    axis_step: usize,
+/// Where a record kind keeps its box, for [`step_bounds_kernel`] (a compile-time argument: one
+/// kernel per record kind). Offsets in floats from the start of a record.
+#[derive(Clone, Copy, Debug, Hash, PartialEq, Eq)]
+pub struct BoxLayout {
+    /// Floats per record.
+    pub width: usize,
+    /// Box axes (2 for pixel boxes, 3 for voxel boxes).
+    pub axes: usize,
+    /// Offset of the first axis's low end.
+    pub lo_at: usize,
+    /// Offset of the first axis's high end.
+    pub hi_at: usize,
+    /// Offset from one axis's end to the next axis's.
+    pub axis_step: usize,
 }
 
 /// Affine projection records ([`AffineRecord`](super::project::AffineRecord)): `[x0, x1, y0, y1]`.
@@ -179,11 +185,7 @@ pub(super) fn step_bounds(
         out.clone().into_tensor_arg(),
         k as u32,
         sets as u32,
-        layout.width,
-        layout.axes,
-        layout.lo_at,
-        layout.hi_at,
-        layout.axis_step,
+        layout,
     );
     out
 }

@@ -6,7 +6,10 @@ use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
 use super::math::{Ray, RayGaussian, exact_ray, factors, quat_backward};
-use super::types::{Mat3, Params, Rect, Vec3, View, cell_span, densities_finite, finite, offset};
+use super::project::ProjectUniforms;
+use super::types::{
+    GaussianBuffers, Mat3, Params, Rect, Vec3, View, cell_span, densities_finite, finite, offset,
+};
 
 /// Floats per [`ExactRecord`].
 pub const EXACT_WIDTH: usize = 19;
@@ -60,33 +63,26 @@ impl ExactRecord {
 /// `0 ≤ z ≤ sdd`; its projected corners bound the pixel box (cone: the whole detector if the box
 /// reaches the source plane). Zeros if culled.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 pub fn prepare_exact_kernel(
-    means: &Tensor<f32>,
-    scales: &Tensor<f32>,
-    rotations: &Tensor<f32>,
-    densities: &Tensor<f32>,
+    gaussians: &GaussianBuffers,
     screen: &Tensor<f32>,
     cams: &Tensor<f32>,
     out: &mut Tensor<f32>,
-    k: u32,
-    n_views: u32,
-    rows: u32,
-    cols: u32,
-    cutoff: f32,
+    uniforms: &ProjectUniforms,
     #[comptime] m: usize,
 ) {
     let idx = ABSOLUTE_POS;
-    let kk = k as usize;
-    if idx >= kk * n_views as usize {
+    let kk = uniforms.k as usize;
+    if idx >= kk * uniforms.n_views as usize {
         terminate!();
     }
+    let cutoff = uniforms.cutoff;
     let v = idx / kk;
     let i = idx % kk;
     let mut rec = ExactRecord::culled();
-    let p = Params::load(means, scales, rotations, i);
+    let p = Params::load(gaussians, i);
     let f = factors(p);
-    if densities_finite(densities, i, m) && f.ok {
+    if densities_finite(&gaussians.densities, i, m) && f.ok {
         let cam = View::load(cams, v);
         let t = cam.to_camera(p.mean);
         let z = t.z;
@@ -150,8 +146,8 @@ pub fn prepare_exact_kernel(
                 };
             }
         }
-        let (x0, x1) = cell_span(bb.x0, bb.x1, cols);
-        let (y0, y1) = cell_span(bb.y0, bb.y1, rows);
+        let (x0, x1) = cell_span(bb.x0, bb.x1, uniforms.cols);
+        let (y0, y1) = cell_span(bb.y0, bb.y1, uniforms.rows);
         let span = Rect { x0, x1, y0, y1 };
         if span.is_empty() {
             good = false;
@@ -265,38 +261,30 @@ fn exact_pixel(acc: ExactSums, g: RayGaussian, ray: Ray, u: f32, z: f32, sdd: f3
 /// [`ExactSums`], then chains them to the camera-frame centre (and the screen offset) and through
 /// `A = (W R)ᵀ` to the rotation.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 pub fn backward_exact_kernel(
-    means: &Tensor<f32>,
-    scales: &Tensor<f32>,
-    rotations: &Tensor<f32>,
-    densities: &Tensor<f32>,
+    gaussians: &GaussianBuffers,
     screen: &Tensor<f32>,
     cams: &Tensor<f32>,
     prepared: &Tensor<f32>,
     grad: &Tensor<f32>,
-    g_means: &mut Tensor<f32>,
-    g_scales: &mut Tensor<f32>,
-    g_rotations: &mut Tensor<f32>,
-    g_densities: &mut Tensor<f32>,
+    grads: &mut GaussianBuffers,
     g_screen: &mut Tensor<f32>,
-    k: u32,
-    n_views: u32,
-    rows: u32,
-    cols: u32,
-    cutoff: f32,
+    uniforms: &ProjectUniforms,
     #[comptime] m: usize,
 ) {
     let i = ABSOLUTE_POS;
-    let kk = k as usize;
+    let kk = uniforms.k as usize;
     if i >= kk {
         terminate!();
     }
+    let rows = uniforms.rows;
+    let cols = uniforms.cols;
+    let cutoff = uniforms.cutoff;
     let cut2 = cutoff * cutoff;
     let cols_f = f32::cast_from(cols);
     let rows_f = f32::cast_from(rows);
     let plane = (rows * cols) as usize;
-    let f = factors(Params::load(means, scales, rotations, i));
+    let f = factors(Params::load(gaussians, i));
     // Totals over views: ∂mean, ∂scale, ∂R; ∂density (m).
     let mut t_mean = Vec3::zero();
     let mut t_scale = Vec3::zero();
@@ -306,7 +294,7 @@ pub fn backward_exact_kernel(
     for c in 0..m {
         total_d[c] = 0.0f32;
     }
-    for v in 0..n_views as usize {
+    for v in 0..uniforms.n_views as usize {
         let so = 2 * (v * kk + i);
         g_screen[so] = 0.0f32;
         g_screen[so + 1] = 0.0f32;
@@ -333,7 +321,7 @@ pub fn backward_exact_kernel(
                         for c in 0..m {
                             let g = grad[(v * m + c) * plane + px];
                             sums[c] += g * ray.value;
-                            u += densities[i * m + c] * g;
+                            u += gaussians.densities[i * m + c] * g;
                         }
                         acc = exact_pixel(acc, rec.g, ray, u, z, cam.sdd);
                     }
@@ -380,13 +368,13 @@ pub fn backward_exact_kernel(
     }
     let q = quat_backward(f, t_rot);
     let zero = 0.0f32;
-    t_mean.store(g_means, 3 * i);
-    t_scale.store(g_scales, 3 * i);
-    g_rotations[4 * i] = select(f.ok, q.w, zero);
-    g_rotations[4 * i + 1] = select(f.ok, q.x, zero);
-    g_rotations[4 * i + 2] = select(f.ok, q.y, zero);
-    g_rotations[4 * i + 3] = select(f.ok, q.z, zero);
+    t_mean.store(&mut grads.means, 3 * i);
+    t_scale.store(&mut grads.scales, 3 * i);
+    grads.rotations[4 * i] = select(f.ok, q.w, zero);
+    grads.rotations[4 * i + 1] = select(f.ok, q.x, zero);
+    grads.rotations[4 * i + 2] = select(f.ok, q.y, zero);
+    grads.rotations[4 * i + 3] = select(f.ok, q.z, zero);
     for c in 0..m {
-        g_densities[i * m + c] = total_d[c];
+        grads.densities[i * m + c] = total_d[c];
     }
 }

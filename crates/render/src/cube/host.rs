@@ -2,14 +2,16 @@
 //! cameras and grid the kernels read.
 
 use burn_cubecl::cubecl;
-use burn_cubecl::{kernel::into_contiguous, tensor::CubeTensor};
+use burn_cubecl::{CubeBackend, kernel::into_contiguous, tensor::CubeTensor};
 use cubecl::prelude::*;
 
 use super::CHUNK;
-use super::types::VIEW_WIDTH;
-use super::voxelize::{self, GRID_WIDTH};
+use super::project::ProjectUniformsLaunch;
+use super::types::{GaussianBuffersLaunch, VIEW_WIDTH};
+use super::voxelize::{self, GRID_WIDTH, VoxelizeUniformsLaunch};
 use crate::camera::{Camera, Projection};
-use crate::options::{VoxelGrid, VoxelizeOptions};
+use crate::ops::GaussianTensors;
+use crate::options::{ProjectOptions, VoxelGrid, VoxelizeOptions};
 
 /// Cameras as `[V · VIEW_WIDTH]` f32, in the order [`View::load`](super::types::View::load)
 /// reads: rotation (row-major), translation, fx, fy, cx, cy, sdd, cone flag.
@@ -40,33 +42,90 @@ pub fn linear(n: usize) -> (CubeCount, CubeDim) {
     prism_kernel::cube::linear(n, CHUNK as u32)
 }
 
-/// The four Gaussian parameter tensors made contiguous.
+/// The four Gaussian parameter tensors made contiguous, with their counts.
 pub struct Params {
     pub means: CubeTensor,
     pub scales: CubeTensor,
     pub rotations: CubeTensor,
     pub densities: CubeTensor,
+    /// Number of Gaussians K.
     pub k: usize,
+    /// Number of density channels M.
     pub m: usize,
 }
 
 impl Params {
-    pub fn new(
-        means: CubeTensor,
-        scales: CubeTensor,
-        rotations: CubeTensor,
-        densities: CubeTensor,
-    ) -> Self {
-        let k = dims(&means)[0];
-        let m = dims(&densities)[1];
+    pub fn new(g: GaussianTensors<CubeBackend>) -> Self {
+        let k = dims(&g.means)[0];
+        let m = dims(&g.densities)[1];
         Self {
-            means: into_contiguous(means),
-            scales: into_contiguous(scales),
-            rotations: into_contiguous(rotations),
-            densities: into_contiguous(densities),
+            means: into_contiguous(g.means),
+            scales: into_contiguous(g.scales),
+            rotations: into_contiguous(g.rotations),
+            densities: into_contiguous(g.densities),
             k,
             m,
         }
+    }
+
+    /// The tensors as a kernel's [`GaussianBuffers`](super::types::GaussianBuffers).
+    pub fn launch_arg(&self) -> GaussianBuffersLaunch {
+        GaussianBuffersLaunch {
+            means: self.means.clone().into_tensor_arg(),
+            scales: self.scales.clone().into_tensor_arg(),
+            rotations: self.rotations.clone().into_tensor_arg(),
+            densities: self.densities.clone().into_tensor_arg(),
+        }
+    }
+}
+
+/// Zeroed gradient tensors shaped like `p`'s, launched as a kernel's gradient
+/// [`GaussianBuffers`](super::types::GaussianBuffers).
+pub fn zero_grads(p: &Params) -> (GaussianTensors<CubeBackend>, GaussianBuffersLaunch) {
+    let means = zeros(&p.means, vec![p.k, 3]);
+    let scales = zeros(&p.means, vec![p.k, 3]);
+    let rotations = zeros(&p.means, vec![p.k, 4]);
+    let densities = zeros(&p.means, vec![p.k, p.m]);
+    let arg = GaussianBuffersLaunch {
+        means: means.clone().into_tensor_arg(),
+        scales: scales.clone().into_tensor_arg(),
+        rotations: rotations.clone().into_tensor_arg(),
+        densities: densities.clone().into_tensor_arg(),
+    };
+    let g = GaussianTensors {
+        means,
+        scales,
+        rotations,
+        densities,
+    };
+    (g, arg)
+}
+
+/// The [`ProjectUniforms`](super::project::ProjectUniforms) of one call with `k` Gaussians (the
+/// detector size is the first camera's; 0 without cameras).
+pub fn project_uniforms(
+    k: usize,
+    cameras: &[Camera],
+    options: &ProjectOptions,
+) -> ProjectUniformsLaunch {
+    let (rows, cols) = cameras.first().map_or((0, 0), |c| (c.rows, c.cols));
+    ProjectUniformsLaunch {
+        k: k as u32,
+        n_views: cameras.len() as u32,
+        rows: rows as u32,
+        cols: cols as u32,
+        cutoff: options.cutoff as f32,
+        cut2: (options.cutoff * options.cutoff) as f32,
+        near_fraction: options.near_fraction as f32,
+    }
+}
+
+/// The [`VoxelizeUniforms`](super::voxelize::VoxelizeUniforms) of one call with `k` Gaussians.
+pub fn voxelize_uniforms(k: usize, options: &VoxelizeOptions) -> VoxelizeUniformsLaunch {
+    VoxelizeUniformsLaunch {
+        k: k as u32,
+        cutoff: options.cutoff as f32,
+        cut2: (options.cutoff * options.cutoff) as f32,
     }
 }
 
@@ -87,14 +146,10 @@ pub fn voxel_prepare(p: &Params, grid: &CubeTensor, options: &VoxelizeOptions) -
         &p.means.client,
         count,
         dim,
-        p.means.clone().into_tensor_arg(),
-        p.scales.clone().into_tensor_arg(),
-        p.rotations.clone().into_tensor_arg(),
-        p.densities.clone().into_tensor_arg(),
+        p.launch_arg(),
         grid.clone().into_tensor_arg(),
         out.clone().into_tensor_arg(),
-        p.k as u32,
-        options.cutoff as f32,
+        voxelize_uniforms(p.k, options),
         p.m,
     );
     out

@@ -40,52 +40,44 @@ use burn_cubecl::{CubeBackend, kernel::into_contiguous};
 use cubecl::prelude::*;
 
 use crate::camera::Camera;
+use crate::ops::GaussianTensors;
 use crate::options::{ProjectOptions, ProjectionMode, VoxelGrid, VoxelizeOptions};
 use culling::{AFFINE_BOXES, EXACT_BOXES, VOXEL_BOXES, step_bounds};
-use host::{Params, dims, grid_record, linear, upload, voxel_prepare, zeros};
+use host::{
+    Params, dims, grid_record, linear, project_uniforms, upload, voxel_prepare, voxelize_uniforms,
+    zero_grads, zeros,
+};
 use project::TILE;
 
 impl crate::ops::GaussianOps for CubeBackend {
     fn gaussian_project_prepare(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         screen: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
     ) -> FloatTensor<Self> {
-        let p = Params::new(means, scales, rotations, densities);
+        let p = Params::new(gaussians);
         let exact = options.mode == ProjectionMode::Exact;
         let out = zeros(
             &p.means,
             vec![cameras.len(), p.k, prepared_width(options.mode)],
         );
-        let Some(first) = cameras.first() else {
-            return out;
-        };
-        if p.k == 0 {
+        if cameras.is_empty() || p.k == 0 {
             return out;
         }
         let cams = upload(&p.means, pack_cameras(&cameras));
         let (count, dim) = linear(p.k * cameras.len());
+        let uniforms = project_uniforms(p.k, &cameras, &options);
         if exact {
             exact::prepare_exact_kernel::launch(
                 &p.means.client,
                 count,
                 dim,
-                p.means.clone().into_tensor_arg(),
-                p.scales.into_tensor_arg(),
-                p.rotations.into_tensor_arg(),
-                p.densities.into_tensor_arg(),
+                p.launch_arg(),
                 into_contiguous(screen).into_tensor_arg(),
                 cams.into_tensor_arg(),
                 out.clone().into_tensor_arg(),
-                p.k as u32,
-                cameras.len() as u32,
-                first.rows as u32,
-                first.cols as u32,
-                options.cutoff as f32,
+                uniforms,
                 p.m,
             );
             return out;
@@ -94,35 +86,27 @@ impl crate::ops::GaussianOps for CubeBackend {
             &p.means.client,
             count,
             dim,
-            p.means.clone().into_tensor_arg(),
-            p.scales.into_tensor_arg(),
-            p.rotations.into_tensor_arg(),
-            p.densities.into_tensor_arg(),
+            p.launch_arg(),
             into_contiguous(screen).into_tensor_arg(),
             cams.into_tensor_arg(),
             out.clone().into_tensor_arg(),
-            p.k as u32,
-            cameras.len() as u32,
-            first.rows as u32,
-            first.cols as u32,
-            options.cutoff as f32,
-            options.near_fraction as f32,
+            uniforms,
             p.m,
         );
         out
     }
 
     fn gaussian_project(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         screen: FloatTensor<Self>,
         prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
     ) -> FloatTensor<Self> {
-        let _ = (scales, rotations, screen);
+        let GaussianTensors {
+            means, densities, ..
+        } = gaussians;
+        let _ = screen;
         let exact = options.mode == ProjectionMode::Exact;
         let k = dims(&means)[0];
         let m = dims(&densities)[1];
@@ -149,10 +133,7 @@ impl crate::ops::GaussianOps for CubeBackend {
             into_contiguous(densities).into_tensor_arg(),
             cams.into_tensor_arg(),
             out.clone().into_tensor_arg(),
-            k as u32,
-            rows as u32,
-            cols as u32,
-            (options.cutoff * options.cutoff) as f32,
+            project_uniforms(k, &cameras, &options),
             m,
             exact,
         );
@@ -160,104 +141,55 @@ impl crate::ops::GaussianOps for CubeBackend {
     }
 
     fn gaussian_project_backward(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         screen: FloatTensor<Self>,
         prepared: FloatTensor<Self>,
         cameras: Vec<Camera>,
         options: ProjectOptions,
         grad: FloatTensor<Self>,
-    ) -> (
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-    ) {
-        let p = Params::new(means, scales, rotations, densities);
+    ) -> (GaussianTensors<Self>, FloatTensor<Self>) {
+        let p = Params::new(gaussians);
         let (k, m) = (p.k, p.m);
         let v = cameras.len();
-        let g = (
-            zeros(&p.means, vec![k, 3]),
-            zeros(&p.means, vec![k, 3]),
-            zeros(&p.means, vec![k, 4]),
-            zeros(&p.means, vec![k, m]),
-            zeros(&p.means, vec![v, k, 2]),
-        );
+        let (g, g_arg) = zero_grads(&p);
+        let g_screen = zeros(&p.means, vec![v, k, 2]);
         let Some(first) = cameras.first() else {
-            return g;
+            return (g, g_screen);
         };
         if k == 0 || m == 0 || first.rows == 0 || first.cols == 0 {
-            return g;
+            return (g, g_screen);
         }
         let cams = upload(&p.means, pack_cameras(&cameras));
         let (count, dim) = linear(k);
-        if options.mode == ProjectionMode::Exact {
-            exact::backward_exact_kernel::launch(
-                &p.means.client,
-                count,
-                dim,
-                p.means.clone().into_tensor_arg(),
-                p.scales.into_tensor_arg(),
-                p.rotations.into_tensor_arg(),
-                p.densities.into_tensor_arg(),
-                into_contiguous(screen).into_tensor_arg(),
-                cams.into_tensor_arg(),
-                into_contiguous(prepared).into_tensor_arg(),
-                into_contiguous(grad).into_tensor_arg(),
-                g.0.clone().into_tensor_arg(),
-                g.1.clone().into_tensor_arg(),
-                g.2.clone().into_tensor_arg(),
-                g.3.clone().into_tensor_arg(),
-                g.4.clone().into_tensor_arg(),
-                k as u32,
-                v as u32,
-                first.rows as u32,
-                first.cols as u32,
-                options.cutoff as f32,
-                m,
-            );
-            return g;
-        }
-        project::backward_kernel::launch(
+        let uniforms = project_uniforms(k, &cameras, &options);
+        let launch = if options.mode == ProjectionMode::Exact {
+            exact::backward_exact_kernel::launch
+        } else {
+            project::backward_kernel::launch
+        };
+        launch(
             &p.means.client,
             count,
             dim,
-            p.means.clone().into_tensor_arg(),
-            p.scales.into_tensor_arg(),
-            p.rotations.into_tensor_arg(),
-            p.densities.into_tensor_arg(),
+            p.launch_arg(),
             into_contiguous(screen).into_tensor_arg(),
             cams.into_tensor_arg(),
             into_contiguous(prepared).into_tensor_arg(),
             into_contiguous(grad).into_tensor_arg(),
-            g.0.clone().into_tensor_arg(),
-            g.1.clone().into_tensor_arg(),
-            g.2.clone().into_tensor_arg(),
-            g.3.clone().into_tensor_arg(),
-            g.4.clone().into_tensor_arg(),
-            k as u32,
-            v as u32,
-            first.rows as u32,
-            first.cols as u32,
-            options.cutoff as f32,
-            options.near_fraction as f32,
+            g_arg,
+            g_screen.clone().into_tensor_arg(),
+            uniforms,
             m,
         );
-        g
+        (g, g_screen)
     }
 
     fn gaussian_voxelize(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         grid: VoxelGrid,
         options: VoxelizeOptions,
     ) -> FloatTensor<Self> {
-        let p = Params::new(means, scales, rotations, densities);
+        let p = Params::new(gaussians);
         let [nx, ny, nz] = grid.dims;
         let out = zeros(&p.means, vec![p.m, nz, ny, nx]);
         if p.k == 0 || p.m == 0 || grid.is_empty() {
@@ -277,62 +209,40 @@ impl crate::ops::GaussianOps for CubeBackend {
             CubeDim::new_3d(voxelize::BX, voxelize::BY, voxelize::BZ),
             prepared.into_tensor_arg(),
             bounds.into_tensor_arg(),
-            p.densities.into_tensor_arg(),
+            p.densities.clone().into_tensor_arg(),
             grid_t.into_tensor_arg(),
             out.clone().into_tensor_arg(),
-            p.k as u32,
-            (options.cutoff * options.cutoff) as f32,
+            voxelize_uniforms(p.k, &options),
             p.m,
         );
         out
     }
 
     fn gaussian_voxelize_backward(
-        means: FloatTensor<Self>,
-        scales: FloatTensor<Self>,
-        rotations: FloatTensor<Self>,
-        densities: FloatTensor<Self>,
+        gaussians: GaussianTensors<Self>,
         grid: VoxelGrid,
         options: VoxelizeOptions,
         grad: FloatTensor<Self>,
-    ) -> (
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-        FloatTensor<Self>,
-    ) {
-        let p = Params::new(means, scales, rotations, densities);
-        let (k, m) = (p.k, p.m);
-        let g = (
-            zeros(&p.means, vec![k, 3]),
-            zeros(&p.means, vec![k, 3]),
-            zeros(&p.means, vec![k, 4]),
-            zeros(&p.means, vec![k, m]),
-        );
-        if k == 0 || m == 0 || grid.is_empty() {
+    ) -> GaussianTensors<Self> {
+        let p = Params::new(gaussians);
+        let (g, g_arg) = zero_grads(&p);
+        if p.k == 0 || p.m == 0 || grid.is_empty() {
             return g;
         }
         let grid_t = upload(&p.means, grid_record(&grid));
         let prepared = voxel_prepare(&p, &grid_t, &options);
-        let (count, dim) = linear(k);
+        let (count, dim) = linear(p.k);
         voxelize::backward_kernel::launch(
             &p.means.client,
             count,
             dim,
-            p.means.clone().into_tensor_arg(),
-            p.scales.into_tensor_arg(),
-            p.rotations.into_tensor_arg(),
-            p.densities.into_tensor_arg(),
+            p.launch_arg(),
             grid_t.into_tensor_arg(),
             prepared.into_tensor_arg(),
             into_contiguous(grad).into_tensor_arg(),
-            g.0.clone().into_tensor_arg(),
-            g.1.clone().into_tensor_arg(),
-            g.2.clone().into_tensor_arg(),
-            g.3.clone().into_tensor_arg(),
-            k as u32,
-            (options.cutoff * options.cutoff) as f32,
-            m,
+            g_arg,
+            voxelize_uniforms(p.k, &options),
+            p.m,
         );
         g
     }

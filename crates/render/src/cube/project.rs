@@ -20,7 +20,8 @@ use cubecl::prelude::*;
 use super::exact::{EXACT_BOX, EXACT_WIDTH, ExactRecord};
 use super::math::{exact_ray, splat, splat_backward};
 use super::types::{
-    GeomGrad, Params, Rect, Vec3, View, cell_span, densities_finite, finite, offset,
+    GaussianBuffers, GeomGrad, Params, Rect, Vec3, View, cell_span, densities_finite, finite,
+    offset,
 };
 use super::{CHUNK, PER_UNIT, STEP, stage_chunk};
 
@@ -31,6 +32,28 @@ pub const TILE: u32 = 16;
 pub const AFFINE_WIDTH: usize = 10;
 /// Where an [`AffineRecord`] keeps its pixel box.
 pub const AFFINE_BOX: usize = 6;
+
+/// The launch uniforms of the projection kernels (preparation, forward and backward, affine and
+/// exact mode): one call's sizes and options, the same for every kernel of the call (each reads
+/// the ones it needs). Launched as a [`ProjectUniformsLaunch`].
+#[derive(CubeType, CubeLaunch)]
+pub struct ProjectUniforms {
+    /// Number of Gaussians K.
+    pub k: u32,
+    /// Number of views V.
+    pub n_views: u32,
+    /// Detector rows (pixels), the same in every view.
+    pub rows: u32,
+    /// Detector columns (pixels), the same in every view.
+    pub cols: u32,
+    /// Cut-off radius in Mahalanobis units (standard deviations).
+    pub cutoff: f32,
+    /// `cutoff²`, squared in f64 and rounded once: the forward's per-pixel test. (The backward
+    /// kernels square `cutoff` in f32.)
+    pub cut2: f32,
+    /// Near plane as a fraction of the source–detector distance (affine mode's culling).
+    pub near_fraction: f32,
+}
 
 /// An affine splat as the pixel loops read it: the projected centre, the factored conic
 /// `a (dx + β dy)² + γ dy²`, the integration factor μ, the pixel box.
@@ -99,42 +122,41 @@ impl AffineRecord {
     }
 }
 
+/// Affine-mode preparation: one [`AffineRecord`] per (view, Gaussian) into `out`.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 pub fn prepare_kernel(
-    means: &Tensor<f32>,
-    scales: &Tensor<f32>,
-    rotations: &Tensor<f32>,
-    densities: &Tensor<f32>,
+    gaussians: &GaussianBuffers,
     screen: &Tensor<f32>,
     cams: &Tensor<f32>,
     out: &mut Tensor<f32>,
-    k: u32,
-    n_views: u32,
-    rows: u32,
-    cols: u32,
-    cutoff: f32,
-    near_fraction: f32,
+    uniforms: &ProjectUniforms,
     #[comptime] m: usize,
 ) {
     let idx = ABSOLUTE_POS;
-    let kk = k as usize;
-    if idx >= kk * n_views as usize {
+    let kk = uniforms.k as usize;
+    if idx >= kk * uniforms.n_views as usize {
         terminate!();
     }
     let v = idx / kk;
     let i = idx % kk;
     let mut rec = AffineRecord::culled();
-    if densities_finite(densities, i, m) {
+    if densities_finite(&gaussians.densities, i, m) {
         let (ox, oy) = offset(screen, v, kk, i);
-        let p = Params::load(means, scales, rotations, i);
-        let s = splat(p, View::load(cams, v), ox, oy, cutoff, near_fraction);
+        let p = Params::load(gaussians, i);
+        let s = splat(
+            p,
+            View::load(cams, v),
+            ox,
+            oy,
+            uniforms.cutoff,
+            uniforms.near_fraction,
+        );
         if s.ok {
             let a = s.conic.x;
             let beta = s.conic.y / a;
             let gamma = s.conic.z - s.conic.y * beta;
-            let (x0, x1) = cell_span(s.mx - s.hx, s.mx + s.hx, cols);
-            let (y0, y1) = cell_span(s.my - s.hy, s.my + s.hy, rows);
+            let (x0, x1) = cell_span(s.mx - s.hx, s.mx + s.hx, uniforms.cols);
+            let (y0, y1) = cell_span(s.my - s.hy, s.my + s.hy, uniforms.rows);
             let bbox = Rect { x0, x1, y0, y1 };
             let good = finite(a)
                 && a > 0.0f32
@@ -162,20 +184,19 @@ pub fn prepare_kernel(
 /// ([`AffineRecord`] or [`ExactRecord`], integrated per pixel by [`exact_ray`]); `bounds` are the
 /// step boxes of [`super::step_bounds_kernel`] over the same records.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 pub fn forward_kernel(
     prepared: &Tensor<f32>,
     bounds: &Tensor<f32>,
     densities: &Tensor<f32>,
     cams: &Tensor<f32>,
     out: &mut Tensor<f32>,
-    k: u32,
-    rows: u32,
-    cols: u32,
-    cut2: f32,
+    uniforms: &ProjectUniforms,
     #[comptime] m: usize,
     #[comptime] exact: bool,
 ) {
+    let rows = uniforms.rows;
+    let cols = uniforms.cols;
+    let cut2 = uniforms.cut2;
     let width = comptime![if exact { EXACT_WIDTH } else { AFFINE_WIDTH }];
     let bx = comptime![if exact { EXACT_BOX } else { AFFINE_BOX }];
     let v = CUBE_POS_Z as usize;
@@ -203,7 +224,7 @@ pub fn forward_kernel(
     for c in 0..m {
         acc[c] = 0.0f32;
     }
-    let kk = k as usize;
+    let kk = uniforms.k as usize;
     let base = v * kk;
     let steps = (kk + STEP - 1) / STEP;
     let mut start = 0usize;
@@ -269,47 +290,41 @@ pub fn forward_kernel(
     }
 }
 
+/// Affine-mode backward, one unit per Gaussian: gathers the pixel moments of its footprint in
+/// every view from `grad` (`[V, M, rows, cols]`), chains them to the Gaussian's parameters
+/// (`grads`) and screen offsets (`g_screen`, `[V, K, 2]`).
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 pub fn backward_kernel(
-    means: &Tensor<f32>,
-    scales: &Tensor<f32>,
-    rotations: &Tensor<f32>,
-    densities: &Tensor<f32>,
+    gaussians: &GaussianBuffers,
     screen: &Tensor<f32>,
     cams: &Tensor<f32>,
     prepared: &Tensor<f32>,
     grad: &Tensor<f32>,
-    g_means: &mut Tensor<f32>,
-    g_scales: &mut Tensor<f32>,
-    g_rotations: &mut Tensor<f32>,
-    g_densities: &mut Tensor<f32>,
+    grads: &mut GaussianBuffers,
     g_screen: &mut Tensor<f32>,
-    k: u32,
-    n_views: u32,
-    rows: u32,
-    cols: u32,
-    cutoff: f32,
-    near_fraction: f32,
+    uniforms: &ProjectUniforms,
     #[comptime] m: usize,
 ) {
     let i = ABSOLUTE_POS;
-    let kk = k as usize;
+    let kk = uniforms.k as usize;
     if i >= kk {
         terminate!();
     }
+    let rows = uniforms.rows;
+    let cols = uniforms.cols;
+    let cutoff = uniforms.cutoff;
     let cut2 = cutoff * cutoff;
     let cols_f = f32::cast_from(cols);
     let rows_f = f32::cast_from(rows);
     let plane = (rows * cols) as usize;
-    let p = Params::load(means, scales, rotations, i);
+    let p = Params::load(gaussians, i);
     let mut total = GeomGrad::zero();
     let mut total_d = Array::<f32>::new(m);
     let mut sums = Array::<f32>::new(m);
     for c in 0..m {
         total_d[c] = 0.0f32;
     }
-    for v in 0..n_views as usize {
+    for v in 0..uniforms.n_views as usize {
         let so = 2 * (v * kk + i);
         g_screen[so] = 0.0f32;
         g_screen[so + 1] = 0.0f32;
@@ -344,7 +359,7 @@ pub fn backward_kernel(
                         for c in 0..m {
                             let gc = grad[(v * m + c) * plane + px];
                             sums[c] += gc * g;
-                            u += densities[i * m + c] * gc;
+                            u += gaussians.densities[i * m + c] * gc;
                         }
                         let w = u * g;
                         wx += w * dx;
@@ -359,7 +374,7 @@ pub fn backward_kernel(
             }
             let cam = View::load(cams, v);
             let (ox, oy) = offset(screen, v, kk, i);
-            let s = splat(p, cam, ox, oy, cutoff, near_fraction);
+            let s = splat(p, cam, ox, oy, cutoff, uniforms.near_fraction);
             if s.ok {
                 let mu = s.mu;
                 let gmx = mu * (s.conic.x * wx + s.conic.y * wy);
@@ -367,7 +382,7 @@ pub fn backward_kernel(
                 let g_conic = Vec3::new(-0.5f32 * mu * wxx, -0.5f32 * mu * wxy, -0.5f32 * mu * wyy);
                 let mut g_mu = 0.0f32;
                 for c in 0..m {
-                    g_mu += densities[i * m + c] * sums[c];
+                    g_mu += gaussians.densities[i * m + c] * sums[c];
                 }
                 let geo = splat_backward(s, cam, gmx, gmy, g_conic, g_mu);
                 let mut good = finite(gmx) && finite(gmy) && geo.is_finite();
@@ -387,8 +402,8 @@ pub fn backward_kernel(
             }
         }
     }
-    total.store(g_means, g_scales, g_rotations, i);
+    total.store(grads, i);
     for c in 0..m {
-        g_densities[i * m + c] = total_d[c];
+        grads.densities[i * m + c] = total_d[c];
     }
 }

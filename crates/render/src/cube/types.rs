@@ -363,6 +363,18 @@ impl View {
     }
 }
 
+/// The Gaussian parameter tensors as the kernels read them, contiguous in the layouts of
+/// [`crate::ops`]: means `[K, 3]`, scales `[K, 3]`, rotations `[K, 4]` (raw quaternions
+/// `w, x, y, z`), densities `[K, M]`. The backward kernels write the parameters' gradients into a
+/// second one (same shapes). Launched as a [`GaussianBuffersLaunch`].
+#[derive(CubeType, CubeLaunch)]
+pub struct GaussianBuffers {
+    pub means: OwnedTensor<f32>,
+    pub scales: OwnedTensor<f32>,
+    pub rotations: OwnedTensor<f32>,
+    pub densities: OwnedTensor<f32>,
+}
+
 /// Gaussian `i`'s parameters as the ops receive them: mean, scales (standard deviations), the raw
 /// quaternion.
 #[derive(CubeType, CubeTypeMut, Clone, Copy)]
@@ -375,16 +387,12 @@ pub struct Params {
 
 #[cube]
 impl Params {
-    pub fn load(
-        means: &Tensor<f32>,
-        scales: &Tensor<f32>,
-        rotations: &Tensor<f32>,
-        i: usize,
-    ) -> Params {
+    /// Gaussian `i` of `g`.
+    pub fn load(g: &GaussianBuffers, i: usize) -> Params {
         Params {
-            mean: Vec3::load(means, 3 * i),
-            scale: Vec3::load(scales, 3 * i),
-            quat: Quat::load(rotations, 4 * i),
+            mean: Vec3::load(&g.means, 3 * i),
+            scale: Vec3::load(&g.scales, 3 * i),
+            quat: Quat::load(&g.rotations, 4 * i),
         }
     }
 }
@@ -432,17 +440,11 @@ impl GeomGrad {
         self.mean.is_finite() && self.scale.is_finite() && self.quat.is_finite()
     }
 
-    /// Write Gaussian `i`'s gradients into the three output tensors.
-    pub fn store(
-        self,
-        g_means: &mut Tensor<f32>,
-        g_scales: &mut Tensor<f32>,
-        g_rotations: &mut Tensor<f32>,
-        i: usize,
-    ) {
-        self.mean.store(g_means, 3 * i);
-        self.scale.store(g_scales, 3 * i);
-        self.quat.store(g_rotations, 4 * i);
+    /// Write Gaussian `i`'s gradients into the means, scales and rotations of `grads`.
+    pub fn store(self, grads: &mut GaussianBuffers, i: usize) {
+        self.mean.store(&mut grads.means, 3 * i);
+        self.scale.store(&mut grads.scales, 3 * i);
+        self.quat.store(&mut grads.rotations, 4 * i);
     }
 }
 

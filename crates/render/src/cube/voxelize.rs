@@ -7,7 +7,9 @@ use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
 use super::math::{factors, quat_backward, variances};
-use super::types::{GeomGrad, Mat3, Params, Vec3, cell_span, densities_finite, finite};
+use super::types::{
+    GaussianBuffers, GeomGrad, Mat3, Params, Vec3, cell_span, densities_finite, finite,
+};
 use super::{CHUNK, PER_UNIT, STEP, stage_chunk};
 
 /// Brick edge (units per cube: `BX · BY · BZ` = [`CHUNK`]).
@@ -56,6 +58,18 @@ impl Grid {
             .add(self.n.scale(0.5f32))
             .sub(Vec3::new(0.5f32, 0.5f32, 0.5f32))
     }
+}
+
+/// The launch uniforms of the voxelization kernels (preparation, forward, backward): one call's
+/// size and cut-off. Launched as a [`VoxelizeUniformsLaunch`].
+#[derive(CubeType, CubeLaunch)]
+pub struct VoxelizeUniforms {
+    /// Number of Gaussians K.
+    pub k: u32,
+    /// Cut-off radius in Mahalanobis units (standard deviations): the preparation's voxel box.
+    pub cutoff: f32,
+    /// `cutoff²`, squared in f64 and rounded once: the per-voxel test.
+    pub cut2: f32,
 }
 
 /// Floats per [`VoxelRecord`] (two of padding).
@@ -119,29 +133,26 @@ fn boxes_meet(lo: Vec3, hi: Vec3, blo: Vec3, bhi: Vec3) -> bool {
         && hi.z > blo.z
 }
 
+/// One [`VoxelRecord`] per Gaussian into `out`.
 #[cube(launch)]
 pub fn prepare_kernel(
-    means: &Tensor<f32>,
-    scales: &Tensor<f32>,
-    rotations: &Tensor<f32>,
-    densities: &Tensor<f32>,
+    gaussians: &GaussianBuffers,
     grid: &Tensor<f32>,
     out: &mut Tensor<f32>,
-    k: u32,
-    cutoff: f32,
+    uniforms: &VoxelizeUniforms,
     #[comptime] m: usize,
 ) {
     let i = ABSOLUTE_POS;
-    if i >= k as usize {
+    if i >= uniforms.k as usize {
         terminate!();
     }
     let mut rec = VoxelRecord::culled();
-    let p = Params::load(means, scales, rotations, i);
+    let p = Params::load(gaussians, i);
     let f = factors(p);
-    if densities_finite(densities, i, m) && f.ok {
+    if densities_finite(&gaussians.densities, i, m) && f.ok {
         let grid = Grid::load(grid);
         let v = variances(f);
-        let half = Vec3::new(f32::sqrt(v.x), f32::sqrt(v.y), f32::sqrt(v.z)).scale(cutoff);
+        let half = Vec3::new(f32::sqrt(v.x), f32::sqrt(v.y), f32::sqrt(v.z)).scale(uniforms.cutoff);
         let first = grid.index(p.mean.sub(half));
         let last = grid.index(p.mean.add(half));
         let (lx, hx) = cell_span(first.x, last.x, u32::cast_from(grid.n.x));
@@ -180,6 +191,7 @@ fn neg_half_q3(w: Mat3, d: Vec3, cut2: f32) -> f32 {
     r
 }
 
+/// Brick forward: one cube per brick of `BX × BY × BZ` voxels sums the records that reach it.
 #[cube(launch)]
 pub fn forward_kernel(
     prepared: &Tensor<f32>,
@@ -187,10 +199,10 @@ pub fn forward_kernel(
     densities: &Tensor<f32>,
     grid: &Tensor<f32>,
     out: &mut Tensor<f32>,
-    k: u32,
-    cut2: f32,
+    uniforms: &VoxelizeUniforms,
     #[comptime] m: usize,
 ) {
+    let cut2 = uniforms.cut2;
     let grid = Grid::load(grid);
     let t = ((UNIT_POS_Z * BY + UNIT_POS_Y) * BX + UNIT_POS_X) as usize;
     let nx = u32::cast_from(grid.n.x);
@@ -217,7 +229,7 @@ pub fn forward_kernel(
     for c in 0..m {
         acc[c] = 0.0f32;
     }
-    let kk = k as usize;
+    let kk = uniforms.k as usize;
     let mut start = 0usize;
     while start < kk {
         // The step's union box (super::step_bounds_kernel, `(lo, hi)` per axis): skip the step,
@@ -274,28 +286,23 @@ pub fn forward_kernel(
     }
 }
 
+/// Per-Gaussian backward: one unit gathers its record's voxel box from `grad`
+/// (`[M, nz, ny, nx]`) and writes the Gaussian's gradients into `grads`.
 #[cube(launch)]
-#[allow(clippy::too_many_arguments)]
 pub fn backward_kernel(
-    means: &Tensor<f32>,
-    scales: &Tensor<f32>,
-    rotations: &Tensor<f32>,
-    densities: &Tensor<f32>,
+    gaussians: &GaussianBuffers,
     grid: &Tensor<f32>,
     prepared: &Tensor<f32>,
     grad: &Tensor<f32>,
-    g_means: &mut Tensor<f32>,
-    g_scales: &mut Tensor<f32>,
-    g_rotations: &mut Tensor<f32>,
-    g_densities: &mut Tensor<f32>,
-    k: u32,
-    cut2: f32,
+    grads: &mut GaussianBuffers,
+    uniforms: &VoxelizeUniforms,
     #[comptime] m: usize,
 ) {
     let i = ABSOLUTE_POS;
-    if i >= k as usize {
+    if i >= uniforms.k as usize {
         terminate!();
     }
+    let cut2 = uniforms.cut2;
     let grid = Grid::load(grid);
     let rec = VoxelRecord::load(prepared, i * VOXEL_WIDTH);
     let nx = u32::cast_from(grid.n.x);
@@ -334,7 +341,7 @@ pub fn backward_kernel(
                     for c in 0..m {
                         let gc = grad[c * vol + p];
                         sums[c] += gc * g;
-                        u += densities[i * m + c] * gc;
+                        u += gaussians.densities[i * m + c] * gc;
                     }
                     let we = e.scale(u * g);
                     m_e = m_e.add(we);
@@ -347,7 +354,7 @@ pub fn backward_kernel(
         }
         z += 1;
     }
-    let f = factors(Params::load(means, scales, rotations, i));
+    let f = factors(Params::load(gaussians, i));
     let mut good = x0 < x1 && y0 < y1 && z0 < z1 && f.ok;
     let mut out = GeomGrad::zero();
     if good {
@@ -378,8 +385,8 @@ pub fn backward_kernel(
             sums[c] = 0.0f32;
         }
     }
-    out.store(g_means, g_scales, g_rotations, i);
+    out.store(grads, i);
     for c in 0..m {
-        g_densities[i * m + c] = sums[c];
+        grads.densities[i * m + c] = sums[c];
     }
 }

@@ -51,18 +51,26 @@ fn rel(a: f64, b: f64, scale: f64) -> f64 {
 
 /// Adaptive Simpson quadrature (f64) — independent of the closed form.
 fn simpson(f: &dyn Fn(f64) -> f64, a: f64, b: f64, tol: f64, depth: u32) -> f64 {
-    #[allow(clippy::too_many_arguments)]
-    fn rec(
-        f: &dyn Fn(f64) -> f64,
+    /// One panel of the recursion: the interval `[a, b]`, `f` at its ends and midpoint
+    /// (`fa`, `fb`, `fm`), and the panel's Simpson estimate `whole`.
+    #[derive(Clone, Copy)]
+    struct Panel {
         a: f64,
         b: f64,
         fa: f64,
         fm: f64,
         fb: f64,
         whole: f64,
-        tol: f64,
-        d: u32,
-    ) -> f64 {
+    }
+    fn rec(f: &dyn Fn(f64) -> f64, p: Panel, tol: f64, d: u32) -> f64 {
+        let Panel {
+            a,
+            b,
+            fa,
+            fm,
+            fb,
+            whole,
+        } = p;
         let m = 0.5 * (a + b);
         let (lm, rm) = (0.5 * (a + m), 0.5 * (m + b));
         let (flm, frm) = (f(lm), f(rm));
@@ -71,12 +79,35 @@ fn simpson(f: &dyn Fn(f64) -> f64, a: f64, b: f64, tol: f64, depth: u32) -> f64 
         if d == 0 || (left + right - whole).abs() <= 15.0 * tol {
             return left + right + (left + right - whole) / 15.0;
         }
-        rec(f, a, m, fa, flm, fm, left, tol / 2.0, d - 1)
-            + rec(f, m, b, fm, frm, fb, right, tol / 2.0, d - 1)
+        let left = Panel {
+            a,
+            b: m,
+            fa,
+            fm: flm,
+            fb: fm,
+            whole: left,
+        };
+        let right = Panel {
+            a: m,
+            b,
+            fa: fm,
+            fm: frm,
+            fb,
+            whole: right,
+        };
+        rec(f, left, tol / 2.0, d - 1) + rec(f, right, tol / 2.0, d - 1)
     }
     let (fa, fb, fm) = (f(a), f(b), f(0.5 * (a + b)));
     let whole = (b - a) / 6.0 * (fa + 4.0 * fm + fb);
-    rec(f, a, b, fa, fm, fb, whole, tol, depth)
+    let panel = Panel {
+        a,
+        b,
+        fa,
+        fm,
+        fb,
+        whole,
+    };
+    rec(f, panel, tol, depth)
 }
 
 /// Direct evaluation of the unit-density Gaussian at a world point.

@@ -50,6 +50,16 @@ pub struct Joseph {
     sheets: bool,
 }
 
+/// One detector column of one view: the rays of its pixels are traced together (they share their
+/// horizontal path, see the module docs).
+#[derive(Clone, Copy, Debug)]
+struct DetectorColumn<'a> {
+    /// The view's camera.
+    cam: &'a Camera,
+    /// Column index on the detector (0 ≤ col < cols).
+    col: usize,
+}
+
 /// Projecting at least this many views copies the volume to z-fastest order first (the copy costs
 /// about as much as projecting a view or two; single-view calls, as in SART, skip it).
 const TRANSPOSE_MIN_VIEWS: usize = 4;
@@ -115,8 +125,11 @@ impl Joseph {
             .par_chunks_mut(rows)
             .enumerate()
             .for_each_init(Sheet::new, |sheet, (line, out)| {
-                let cam = &self.cameras[views[line / cols]];
-                self.project_column(cam, line % cols, src, layout, &support, sheet, out);
+                let column = DetectorColumn {
+                    cam: &self.cameras[views[line / cols]],
+                    col: line % cols,
+                };
+                self.project_column(column, src, layout, &support, sheet, out);
             });
         let out = swap_last(&columns, cols, rows);
         Ok(Array3::from_shape_vec(shape, out).expect("projection shape"))
@@ -167,16 +180,11 @@ impl Joseph {
                 |(mut acc, mut sheet), line| {
                     let vals = &columns[line * rows..(line + 1) * rows];
                     if vals.iter().any(|&v| v != 0.0) {
-                        let cam = &self.cameras[views[line / cols]];
-                        self.adjoint_column(
-                            cam,
-                            line % cols,
-                            vals,
-                            &mut acc,
-                            layout,
-                            &full,
-                            &mut sheet,
-                        );
+                        let column = DetectorColumn {
+                            cam: &self.cameras[views[line / cols]],
+                            col: line % cols,
+                        };
+                        self.adjoint_column(column, vals, &mut acc, layout, &full, &mut sheet);
                     }
                     (acc, sheet)
                 },
@@ -234,8 +242,8 @@ impl Joseph {
         Ok(())
     }
 
-    /// The rays of detector column `col` in continuous voxel-index space.
-    fn column_rays(&self, cam: &Camera, col: usize) -> ColumnRays {
+    /// The rays of a detector column in continuous voxel-index space.
+    fn column_rays(&self, DetectorColumn { cam, col }: DetectorColumn) -> ColumnRays {
         let grid = &self.geometry.volume;
         let ends = |row: f64| {
             let end = cam.pixel_camera(col as f64, row);
@@ -321,11 +329,9 @@ impl Joseph {
 
     /// Forward-project one detector column into `out` (its rows), compiled for AVX2+FMA when
     /// the CPU has them (ray setup, sheet build and sampling all in one function).
-    #[allow(clippy::too_many_arguments)]
     fn project_column(
         &self,
-        cam: &Camera,
-        col: usize,
+        col: DetectorColumn,
         vol: &[f32],
         layout: Layout,
         support: &Support,
@@ -335,41 +341,37 @@ impl Joseph {
         #[cfg(target_arch = "x86_64")]
         if self.simd {
             // SAFETY: `simd` is only set when the CPU has AVX2 and FMA.
-            return unsafe { self.project_column_avx2(cam, col, vol, layout, support, sheet, out) };
+            return unsafe { self.project_column_avx2(col, vol, layout, support, sheet, out) };
         }
-        self.project_column_body(cam, col, vol, layout, support, sheet, out)
+        self.project_column_body(col, vol, layout, support, sheet, out)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::too_many_arguments)]
     fn project_column_avx2(
         &self,
-        cam: &Camera,
-        col: usize,
+        col: DetectorColumn,
         vol: &[f32],
         layout: Layout,
         support: &Support,
         sheet: &mut Sheet,
         out: &mut [f32],
     ) {
-        self.project_column_body(cam, col, vol, layout, support, sheet, out)
+        self.project_column_body(col, vol, layout, support, sheet, out)
     }
 
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
     fn project_column_body(
         &self,
-        cam: &Camera,
-        col: usize,
+        col: DetectorColumn,
         vol: &[f32],
         layout: Layout,
         support: &Support,
         sheet: &mut Sheet,
         out: &mut [f32],
     ) {
-        let rays = self.column_rays(cam, col);
-        let column = self.column_walk(cam, &rays, support);
+        let rays = self.column_rays(col);
+        let column = self.column_walk(col.cam, &rays, support);
         let mut built = false;
         for (row, o) in out.iter_mut().enumerate() {
             match Self::plan_row(&rays.ray(row), column.as_ref(), support) {
@@ -392,13 +394,11 @@ impl Joseph {
         }
     }
 
-    /// Adjoint of [`Joseph::project_column`]: add column `col`'s rows `vals` into `acc`
+    /// Adjoint of [`Joseph::project_column`]: add the column's rows `vals` into `acc`
     /// (compiled for AVX2+FMA when the CPU has them; the arithmetic is the same on both paths).
-    #[allow(clippy::too_many_arguments)]
     fn adjoint_column(
         &self,
-        cam: &Camera,
-        col: usize,
+        col: DetectorColumn,
         vals: &[f32],
         acc: &mut [f32],
         layout: Layout,
@@ -408,41 +408,37 @@ impl Joseph {
         #[cfg(target_arch = "x86_64")]
         if self.simd {
             // SAFETY: `simd` is only set when the CPU has AVX2 and FMA.
-            return unsafe { self.adjoint_column_avx2(cam, col, vals, acc, layout, full, sheet) };
+            return unsafe { self.adjoint_column_avx2(col, vals, acc, layout, full, sheet) };
         }
-        self.adjoint_column_body(cam, col, vals, acc, layout, full, sheet)
+        self.adjoint_column_body(col, vals, acc, layout, full, sheet)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::too_many_arguments)]
     fn adjoint_column_avx2(
         &self,
-        cam: &Camera,
-        col: usize,
+        col: DetectorColumn,
         vals: &[f32],
         acc: &mut [f32],
         layout: Layout,
         full: &Support,
         sheet: &mut Sheet,
     ) {
-        self.adjoint_column_body(cam, col, vals, acc, layout, full, sheet)
+        self.adjoint_column_body(col, vals, acc, layout, full, sheet)
     }
 
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
     fn adjoint_column_body(
         &self,
-        cam: &Camera,
-        col: usize,
+        col: DetectorColumn,
         vals: &[f32],
         acc: &mut [f32],
         layout: Layout,
         full: &Support,
         sheet: &mut Sheet,
     ) {
-        let rays = self.column_rays(cam, col);
-        let column = self.column_walk(cam, &rays, full);
+        let rays = self.column_rays(col);
+        let column = self.column_walk(col.cam, &rays, full);
         let mut used = false;
         for (row, &val) in vals.iter().enumerate() {
             if val == 0.0 {

@@ -56,7 +56,7 @@ pub(super) fn backward(
                     gt[o..o + tw].copy_from_slice(&gview[src..src + tw]);
                 }
             }
-            let finite = gt.iter().all(|v| v.is_finite());
+            let tile_grad = TileGrad::new(&gt);
             let mut rows = [[0.0f32; HALF]; TILE];
             // Gather the tile's affine splats first (see the forward pass).
             let local: Vec<Option<PixelSplat>> = match &prep {
@@ -70,7 +70,7 @@ pub(super) fn backward(
                 match &prep {
                     Prepared::Affine(..) => {
                         let Some(s) = &local[j] else { continue };
-                        splat_backward(s, r, cut2 as f32, &gt, finite, dens, &mut rows, acc);
+                        splat_backward(s, r, cut2 as f32, tile_grad, dens, &mut rows, acc);
                     }
                     Prepared::Exact(splats) => {
                         let Some((s, px)) = &splats[gi] else { continue };

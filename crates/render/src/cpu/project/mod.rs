@@ -30,7 +30,7 @@ use rayon::prelude::*;
 use super::GaussianSlices;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::Avx2;
-use super::lanes::{LANES, Lanes, Portable, dispatched, has_avx2};
+use super::lanes::{LANES, Lanes, Portable, TileGrad, dispatched, has_avx2};
 use super::tiles::{Bins, TileBox, tile_span};
 use crate::camera::Camera;
 use crate::gaussian_math::{

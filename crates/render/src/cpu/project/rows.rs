@@ -149,8 +149,8 @@ dispatched! {
 dispatched! {
     /// Backward partial sums of splat `s` over tile rect `r` into `acc`
     /// (`[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
-    /// [`project_backward`]) from the tile's upstream gradient `gt` (`[M][tile pixels]`;
-    /// `finite`: every value of it is finite). `rows` is scratch (any contents on entry).
+    /// [`project_backward`]) from the tile's upstream gradient `grad` (`[M][tile pixels]`).
+    /// `rows` is scratch (any contents on entry).
     ///
     /// Per 8-lane column block, two sweeps over the tile rows with register accumulators: the
     /// first evaluates `G` once per pixel, keeps it in `rows` and sums the moments of `w G`
@@ -161,12 +161,12 @@ dispatched! {
         s: &PixelSplat,
         r: (usize, usize, usize, usize),
         cut2: f32,
-        gt: &[f32],
-        finite: bool,
+        grad: TileGrad<'_>,
         dens: &[f32],
         rows: &mut [[f32; HALF]; TILE],
         acc: &mut [f64],
     ) {
+        let TileGrad { values: gt, finite } = grad;
         let m = dens.len();
         // One channel: the first sweep sums the moments of g G instead (ρ factored out and
         // applied after the reduction), whose zeroth moment is S_0 itself: no second sweep.
