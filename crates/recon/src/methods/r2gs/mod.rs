@@ -2,8 +2,8 @@
 //! set of 3D Gaussians, initialised from the channel's FDK ([`crate::init`]) and trained by the
 //! shared Gaussian loop ([`crate::gaussians::train`]). Its configuration is the Gaussian
 //! methods' [`GaussianConfig`] (the geometry-stage sections); checkpoints are the shared
-//! [`crate::gaussians::train::Checkpoints`]; the run skeleton around it (scoring, `train.json`,
-//! volumes) is [`crate::pipeline`]'s.
+//! [`crate::gaussians::train::Checkpoints`]; the run around it is [`crate::pipeline`]'s, and it ends
+//! as every Gaussian run does ([`crate::gaussians::finish`]: volumes, `train.json`, scores).
 
 use crate::Result;
 use crate::gaussians::io::{ModelInfo, save_model, write_ply};
