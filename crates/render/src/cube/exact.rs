@@ -6,9 +6,9 @@ use burn_cubecl::cubecl;
 use cubecl::prelude::*;
 
 use super::math::{Ray, RayGaussian, exact_ray, factors, quat_backward};
-use super::project::ProjectUniforms;
 use super::types::{
-    GaussianBuffers, Mat3, Params, Rect, Vec3, View, cell_span, densities_finite, finite, offset,
+    GaussianBuffers, Mat3, Params, ProjectUniforms, Rect, Vec3, View, cell_span, densities_finite,
+    finite, offset,
 };
 
 /// Floats per [`ExactRecord`].

@@ -6,7 +6,7 @@ use burn_cubecl::{CubeBackend, kernel::into_contiguous, tensor::CubeTensor};
 use cubecl::prelude::*;
 
 use super::CHUNK;
-use super::project::ProjectUniformsLaunch;
+use super::types::ProjectUniformsLaunch;
 use super::types::{GaussianBuffersLaunch, VIEW_WIDTH};
 use super::voxelize::{self, GRID_WIDTH, VoxelizeUniformsLaunch};
 use crate::camera::{Camera, Projection};
@@ -101,7 +101,7 @@ pub fn zero_grads(p: &Params) -> (GaussianTensors<CubeBackend>, GaussianBuffersL
     (g, arg)
 }
 
-/// The [`ProjectUniforms`](super::project::ProjectUniforms) of one call with `k` Gaussians (the
+/// The [`ProjectUniforms`](super::types::ProjectUniforms) of one call with `k` Gaussians (the
 /// detector size is the first camera's; 0 without cameras).
 pub fn project_uniforms(
     k: usize,

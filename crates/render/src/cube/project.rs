@@ -20,8 +20,8 @@ use cubecl::prelude::*;
 use super::exact::{EXACT_BOX, EXACT_WIDTH, ExactRecord};
 use super::math::{exact_ray, splat, splat_backward};
 use super::types::{
-    GaussianBuffers, GeomGrad, Params, Rect, Vec3, View, cell_span, densities_finite, finite,
-    offset,
+    GaussianBuffers, GeomGrad, Params, ProjectUniforms, Rect, Vec3, View, cell_span,
+    densities_finite, finite, offset,
 };
 use super::{CHUNK, PER_UNIT, STEP, stage_chunk};
 
@@ -32,28 +32,6 @@ pub const TILE: u32 = 16;
 pub const AFFINE_WIDTH: usize = 10;
 /// Where an [`AffineRecord`] keeps its pixel box.
 pub const AFFINE_BOX: usize = 6;
-
-/// The launch uniforms of the projection kernels (preparation, forward and backward, affine and
-/// exact mode): one call's sizes and options, the same for every kernel of the call (each reads
-/// the ones it needs). Launched as a [`ProjectUniformsLaunch`].
-#[derive(CubeType, CubeLaunch)]
-pub struct ProjectUniforms {
-    /// Number of Gaussians K.
-    pub k: u32,
-    /// Number of views V.
-    pub n_views: u32,
-    /// Detector rows (pixels), the same in every view.
-    pub rows: u32,
-    /// Detector columns (pixels), the same in every view.
-    pub cols: u32,
-    /// Cut-off radius in Mahalanobis units (standard deviations).
-    pub cutoff: f32,
-    /// `cutoff²`, squared in f64 and rounded once: the forward's per-pixel test. (The backward
-    /// kernels square `cutoff` in f32.)
-    pub cut2: f32,
-    /// Near plane as a fraction of the source–detector distance (affine mode's culling).
-    pub near_fraction: f32,
-}
 
 /// An affine splat as the pixel loops read it: the projected centre, the factored conic
 /// `a (dx + β dy)² + γ dy²`, the integration factor μ, the pixel box.

@@ -454,3 +454,25 @@ pub(super) fn offset(screen: &Tensor<f32>, v: usize, k: usize, i: usize) -> (f32
     let o = 2 * (v * k + i);
     (screen[o], screen[o + 1])
 }
+
+/// The launch uniforms of the projection kernels (preparation, forward and backward, affine and
+/// exact mode): one call's sizes and options, the same for every kernel of the call (each reads
+/// the ones it needs). Launched as a [`ProjectUniformsLaunch`].
+#[derive(CubeType, CubeLaunch)]
+pub struct ProjectUniforms {
+    /// Number of Gaussians K.
+    pub k: u32,
+    /// Number of views V.
+    pub n_views: u32,
+    /// Detector rows (pixels), the same in every view.
+    pub rows: u32,
+    /// Detector columns (pixels), the same in every view.
+    pub cols: u32,
+    /// Cut-off radius in Mahalanobis units (standard deviations).
+    pub cutoff: f32,
+    /// `cutoff²`, squared in f64 and rounded once: the forward's per-pixel test. (The backward
+    /// kernels square `cutoff` in f32.)
+    pub cut2: f32,
+    /// Near plane as a fraction of the source–detector distance (affine mode's culling).
+    pub near_fraction: f32,
+}
