@@ -1,6 +1,6 @@
 //! The reconstruction methods, one folder each, and the one registry of them: the YAML's
 //! `method:` is read as a [`Method`] first, which picks the configuration type of its family.
-//! The CLI, the experiment planner and the config loader read the method list from here.
+//! The config loader (and through it the CLI) and the experiment planner read the methods from here.
 //!
 //! * [`classic`]: FDK, SART, CGLS per channel (the algorithms are [`crate::algorithms`]);
 //! * [`r2gs`]: R²-Gaussian, one set of Gaussians per channel;
@@ -61,7 +61,7 @@ impl Method {
         }
     }
 
-    /// Every method, in the order the CLI lists them.
+    /// Every method (an unknown name's error lists them in this order).
     pub const ALL: [Method; 7] = [
         Method::Fdk,
         Method::Sart,

@@ -44,10 +44,7 @@ pub fn linear(n: usize) -> (CubeCount, CubeDim) {
 
 /// The four Gaussian parameter tensors made contiguous, with their counts.
 pub struct Params {
-    pub means: CubeTensor,
-    pub scales: CubeTensor,
-    pub rotations: CubeTensor,
-    pub densities: CubeTensor,
+    pub g: GaussianTensors<CubeBackend>,
     /// Number of Gaussians K.
     pub k: usize,
     /// Number of density channels M.
@@ -58,46 +55,37 @@ impl Params {
     pub fn new(g: GaussianTensors<CubeBackend>) -> Self {
         let k = dims(&g.means)[0];
         let m = dims(&g.densities)[1];
-        Self {
-            means: into_contiguous(g.means),
-            scales: into_contiguous(g.scales),
-            rotations: into_contiguous(g.rotations),
-            densities: into_contiguous(g.densities),
-            k,
-            m,
-        }
+        let g = GaussianTensors::from_array(g.into_array().map(into_contiguous));
+        Self { g, k, m }
     }
 
     /// The tensors as a kernel's [`GaussianBuffers`](super::types::GaussianBuffers).
     pub fn launch_arg(&self) -> GaussianBuffersLaunch {
-        GaussianBuffersLaunch {
-            means: self.means.clone().into_tensor_arg(),
-            scales: self.scales.clone().into_tensor_arg(),
-            rotations: self.rotations.clone().into_tensor_arg(),
-            densities: self.densities.clone().into_tensor_arg(),
-        }
+        buffers_arg(&self.g)
+    }
+}
+
+/// Four Gaussian tensors as a kernel's [`GaussianBuffers`](super::types::GaussianBuffers).
+fn buffers_arg(g: &GaussianTensors<CubeBackend>) -> GaussianBuffersLaunch {
+    GaussianBuffersLaunch {
+        means: g.means.clone().into_tensor_arg(),
+        scales: g.scales.clone().into_tensor_arg(),
+        rotations: g.rotations.clone().into_tensor_arg(),
+        densities: g.densities.clone().into_tensor_arg(),
     }
 }
 
 /// Zeroed gradient tensors shaped like `p`'s, launched as a kernel's gradient
 /// [`GaussianBuffers`](super::types::GaussianBuffers).
 pub fn zero_grads(p: &Params) -> (GaussianTensors<CubeBackend>, GaussianBuffersLaunch) {
-    let means = zeros(&p.means, vec![p.k, 3]);
-    let scales = zeros(&p.means, vec![p.k, 3]);
-    let rotations = zeros(&p.means, vec![p.k, 4]);
-    let densities = zeros(&p.means, vec![p.k, p.m]);
-    let arg = GaussianBuffersLaunch {
-        means: means.clone().into_tensor_arg(),
-        scales: scales.clone().into_tensor_arg(),
-        rotations: rotations.clone().into_tensor_arg(),
-        densities: densities.clone().into_tensor_arg(),
-    };
+    let like = &p.g.means;
     let g = GaussianTensors {
-        means,
-        scales,
-        rotations,
-        densities,
+        means: zeros(like, vec![p.k, 3]),
+        scales: zeros(like, vec![p.k, 3]),
+        rotations: zeros(like, vec![p.k, 4]),
+        densities: zeros(like, vec![p.k, p.m]),
     };
+    let arg = buffers_arg(&g);
     (g, arg)
 }
 
@@ -140,10 +128,10 @@ pub fn grid_record(grid: &VoxelGrid) -> Vec<f32> {
 }
 
 pub fn voxel_prepare(p: &Params, grid: &CubeTensor, options: &VoxelizeOptions) -> CubeTensor {
-    let out = zeros(&p.means, vec![p.k, voxelize::VOXEL_WIDTH]);
+    let out = zeros(&p.g.means, vec![p.k, voxelize::VOXEL_WIDTH]);
     let (count, dim) = linear(p.k);
     voxelize::prepare_kernel::launch(
-        &p.means.client,
+        &p.g.means.client,
         count,
         dim,
         p.launch_arg(),

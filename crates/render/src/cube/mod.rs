@@ -59,18 +59,18 @@ impl crate::ops::GaussianOps for CubeBackend {
         let p = Params::new(gaussians);
         let exact = options.mode == ProjectionMode::Exact;
         let out = zeros(
-            &p.means,
+            &p.g.means,
             vec![cameras.len(), p.k, prepared_width(options.mode)],
         );
         if cameras.is_empty() || p.k == 0 {
             return out;
         }
-        let cams = upload(&p.means, pack_cameras(&cameras));
+        let cams = upload(&p.g.means, pack_cameras(&cameras));
         let (count, dim) = linear(p.k * cameras.len());
         let uniforms = project_uniforms(p.k, &cameras, &options);
         if exact {
             exact::prepare_exact_kernel::launch(
-                &p.means.client,
+                &p.g.means.client,
                 count,
                 dim,
                 p.launch_arg(),
@@ -83,7 +83,7 @@ impl crate::ops::GaussianOps for CubeBackend {
             return out;
         }
         project::prepare_kernel::launch(
-            &p.means.client,
+            &p.g.means.client,
             count,
             dim,
             p.launch_arg(),
@@ -152,14 +152,14 @@ impl crate::ops::GaussianOps for CubeBackend {
         let (k, m) = (p.k, p.m);
         let v = cameras.len();
         let (g, g_arg) = zero_grads(&p);
-        let g_screen = zeros(&p.means, vec![v, k, 2]);
+        let g_screen = zeros(&p.g.means, vec![v, k, 2]);
         let Some(first) = cameras.first() else {
             return (g, g_screen);
         };
         if k == 0 || m == 0 || first.rows == 0 || first.cols == 0 {
             return (g, g_screen);
         }
-        let cams = upload(&p.means, pack_cameras(&cameras));
+        let cams = upload(&p.g.means, pack_cameras(&cameras));
         let (count, dim) = linear(k);
         let uniforms = project_uniforms(k, &cameras, &options);
         let launch = if options.mode == ProjectionMode::Exact {
@@ -168,7 +168,7 @@ impl crate::ops::GaussianOps for CubeBackend {
             project::backward_kernel::launch
         };
         launch(
-            &p.means.client,
+            &p.g.means.client,
             count,
             dim,
             p.launch_arg(),
@@ -191,11 +191,11 @@ impl crate::ops::GaussianOps for CubeBackend {
     ) -> FloatTensor<Self> {
         let p = Params::new(gaussians);
         let [nx, ny, nz] = grid.dims;
-        let out = zeros(&p.means, vec![p.m, nz, ny, nx]);
+        let out = zeros(&p.g.means, vec![p.m, nz, ny, nx]);
         if p.k == 0 || p.m == 0 || grid.is_empty() {
             return out;
         }
-        let grid_t = upload(&p.means, grid_record(&grid));
+        let grid_t = upload(&p.g.means, grid_record(&grid));
         let prepared = voxel_prepare(&p, &grid_t, &options);
         let bounds = step_bounds(&prepared, p.k, 1, VOXEL_BOXES);
         let count = CubeCount::Static(
@@ -204,12 +204,12 @@ impl crate::ops::GaussianOps for CubeBackend {
             (nz as u32).div_ceil(voxelize::BZ),
         );
         voxelize::forward_kernel::launch(
-            &p.means.client,
+            &p.g.means.client,
             count,
             CubeDim::new_3d(voxelize::BX, voxelize::BY, voxelize::BZ),
             prepared.into_tensor_arg(),
             bounds.into_tensor_arg(),
-            p.densities.clone().into_tensor_arg(),
+            p.g.densities.clone().into_tensor_arg(),
             grid_t.into_tensor_arg(),
             out.clone().into_tensor_arg(),
             voxelize_uniforms(p.k, &options),
@@ -229,11 +229,11 @@ impl crate::ops::GaussianOps for CubeBackend {
         if p.k == 0 || p.m == 0 || grid.is_empty() {
             return g;
         }
-        let grid_t = upload(&p.means, grid_record(&grid));
+        let grid_t = upload(&p.g.means, grid_record(&grid));
         let prepared = voxel_prepare(&p, &grid_t, &options);
         let (count, dim) = linear(p.k);
         voxelize::backward_kernel::launch(
-            &p.means.client,
+            &p.g.means.client,
             count,
             dim,
             p.launch_arg(),
