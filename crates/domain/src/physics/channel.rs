@@ -168,6 +168,21 @@ impl ChannelSpec {
         }
     }
 
+    /// The share of a tube's photons this channel counts: for a photon-counting window, the
+    /// fraction of the `kvp` spectrum's photons in `[lo_kev, hi_kev]`
+    /// ([`Spectrum::fraction`]); 1 for every other kind (the whole beam). Errors name `kvp`.
+    pub fn photon_share(&self) -> Result<f64> {
+        match *self {
+            ChannelSpec::Window {
+                lo_kev,
+                hi_kev,
+                kvp,
+                filtration,
+            } => Ok(tube_for_field(kvp, filtration, "kvp")?.fraction(lo_kev, hi_kev)),
+            _ => Ok(1.0),
+        }
+    }
+
     /// Check every parameter (energies in the table, λ in [0, 1], known kVps, non-empty
     /// window); errors name the field (`kev`, `lambda`, `low_kvp`, `kvp`, `lo_kev`, ...).
     pub fn validate(&self) -> Result<()> {

@@ -177,6 +177,31 @@ impl Spectrum {
         edges
     }
 
+    /// The fraction of the photons with energy in `[lo_kev, hi_kev]`, fluence taken as uniform
+    /// within a bin (as [`Spectrum::window`] does); 0 for an empty or inverted window.
+    pub fn fraction(&self, lo_kev: f64, hi_kev: f64) -> f64 {
+        let edges = self.bin_edges();
+        let total: f64 = self.weights.iter().sum();
+        let inside: f64 = self
+            .weights
+            .iter()
+            .enumerate()
+            .map(|(i, &w)| {
+                let (a, b) = (edges[i], edges[i + 1]);
+                if b <= a {
+                    return if (lo_kev..=hi_kev).contains(&a) {
+                        w
+                    } else {
+                        0.0
+                    };
+                }
+                let overlap = (b.min(hi_kev) - a.max(lo_kev)).max(0.0);
+                w * overlap / (b - a)
+            })
+            .sum();
+        if total > 0.0 { inside / total } else { 0.0 }
+    }
+
     /// The photons with energy in `[lo_kev, hi_kev]`, renormalised: a photon-counting energy
     /// window. Fluence is taken as uniform within a bin, so a bin cut by the window keeps the
     /// overlapping fraction of its weight, centred on the overlap. A window holding no photons is
@@ -279,6 +304,19 @@ pub(crate) fn tube_for_field(kvp: u32, filtration: Filtration, field: &str) -> R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A flat spectrum of 1 keV bins from 10 to 20 keV: a window's share is its width over
+    /// 10 keV, bins cut by it counting by their overlap; windows that tile it sum to 1.
+    #[test]
+    fn the_fraction_in_a_window_counts_bins_by_their_overlap() {
+        let s = Spectrum::new((0..10).map(|i| 10.5 + i as f64).collect(), vec![1.0; 10]).unwrap();
+        assert!((s.fraction(10.0, 20.0) - 1.0).abs() < 1e-12);
+        assert!((s.fraction(12.0, 15.0) - 0.3).abs() < 1e-12);
+        assert!((s.fraction(12.25, 12.75) - 0.05).abs() < 1e-12);
+        assert!((s.fraction(0.0, 12.5) + s.fraction(12.5, 99.0) - 1.0).abs() < 1e-12);
+        assert_eq!(s.fraction(30.0, 40.0), 0.0);
+        assert_eq!(s.fraction(15.0, 12.0), 0.0);
+    }
 
     #[test]
     fn every_embedded_spectrum_loads_and_sums_to_one() {

@@ -10,9 +10,12 @@
 //!    inverse crime);
 //! 2. per channel, the projections from the path lengths and the reference volume from the
 //!    fractions on the scene grid ([`ChannelSpec`]);
-//! 3. noise on the training views only (test views stay noise-free for evaluation);
-//! 4. τ from the channels' physical coordinates, availability (all available unless the config
-//!    drops some (view, channel) pairs), provenance.
+//! 3. noise on the training views only (test views stay noise-free for evaluation), each
+//!    channel with `noise.i0` photons or, for photon-counting bins, its share of them
+//!    ([`Acquisition`]);
+//! 4. τ from the channels' physical coordinates, availability (every channel at every view, or
+//!    interleaved over the training views ([`Acquisition`]), less the pairs the config drops),
+//!    provenance.
 
 use crate::geometry::{Beam, Detector, Geometry, VolumeGrid};
 use crate::memory::{self, Footprint};
@@ -51,9 +54,49 @@ pub struct SimulateConfig {
     /// Noise on the training views; absent = noise-free.
     #[serde(default)]
     pub noise: Option<NoiseModel>,
-    /// (view, channel) pairs that are not acquired.
+    /// How the channels share the training views and the photons.
+    #[serde(default)]
+    pub acquisition: Acquisition,
+    /// (view, channel) pairs that are not acquired (besides those `acquisition` leaves out).
     #[serde(default)]
     pub missing: Vec<[usize; 2]>,
+}
+
+/// How a spectral acquisition shares its views and photons among the channels (YAML
+/// `acquisition:`; both fields optional).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Acquisition {
+    pub views: ViewSharing,
+    pub photons: PhotonSharing,
+}
+
+/// Which channels are measured at each training view (test views always have every channel).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewSharing {
+    /// Every channel at every view (dual-layer, photon-counting, or one scan per channel at the
+    /// same angles).
+    #[default]
+    Shared,
+    /// Channel c at the training views v ≡ c (mod C), C the channel count: fast kV switching,
+    /// or sequential scans at offset angles. `geometry.views` counts the distinct angles, so
+    /// each channel has about `views / C`.
+    Interleaved,
+}
+
+/// How many photons each channel receives when `noise` is set.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PhotonSharing {
+    /// `noise.i0` photons per pixel for every channel (one exposure per channel).
+    #[default]
+    PerChannel,
+    /// `noise.i0` is the tube's photons per pixel over its whole spectrum and each channel
+    /// receives its share ([`ChannelSpec::photon_share`]): photon-counting bins split one
+    /// exposure. Overlapping windows are sampled independently (their counts are correlated
+    /// in a real detector).
+    Split,
 }
 
 /// Scan geometry by physical sizes and counts.
@@ -445,13 +488,26 @@ fn simulate_unnamed(
         }
         availability[[view, channel]] = false;
     }
+    if cfg.acquisition.views == ViewSharing::Interleaved {
+        for v in 0..n_train {
+            for c in 0..n_channels {
+                if v % n_channels != c {
+                    availability[[v, c]] = false;
+                }
+            }
+        }
+    }
 
     let materials = cfg.object.materials(&geometry, observer)?;
-    let noisy = |mut p: Array3<f32>, stream: u64| -> Result<Array3<f32>> {
+    let noisy = |mut p: Array3<f32>, share: f64, stream: u64| -> Result<Array3<f32>> {
         if let Some(noise) = &cfg.noise {
             // Training views only; test views stay noise-free for evaluation.
             let mut train = p.slice(s![..n_train, .., ..]).to_owned();
-            add_noise(&mut train, noise, cfg.seed.wrapping_add(stream))?;
+            let model = NoiseModel {
+                i0: noise.i0 * share,
+                ..*noise
+            };
+            add_noise(&mut train, &model, cfg.seed.wrapping_add(stream))?;
             p.slice_mut(s![..n_train, .., ..]).assign(&train);
         }
         Ok(p)
@@ -461,7 +517,15 @@ fn simulate_unnamed(
     for (c, spec) in cfg.channels.iter().enumerate() {
         observer.phase(&format!("channel {}", spec.label()), 0);
         let field = |e: Error| e.under(&format!("channels[{c}]"));
-        let mut p = noisy(spec.project(&materials.paths).map_err(field)?, 1 + c as u64)?;
+        let share = match cfg.acquisition.photons {
+            PhotonSharing::PerChannel => 1.0,
+            PhotonSharing::Split => spec.photon_share().map_err(field)?,
+        };
+        let mut p = noisy(
+            spec.project(&materials.paths).map_err(field)?,
+            share,
+            1 + c as u64,
+        )?;
         for v in 0..n_views {
             if !availability[[v, c]] {
                 p.index_axis_mut(Axis(0), v).fill(0.0);
@@ -475,6 +539,7 @@ fn simulate_unnamed(
             spec.validate().map_err(|e| e.under("structural"))?;
             Some(noisy(
                 spec.project(&materials.paths)?,
+                1.0,
                 1 + n_channels as u64,
             )?)
         }

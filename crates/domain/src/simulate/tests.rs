@@ -102,6 +102,91 @@ fn missing_pairs_are_unavailable_and_zeroed() {
 }
 
 #[test]
+fn interleaved_channels_take_turns_over_the_training_views_only() {
+    let mut cfg = tiny_config();
+    cfg.acquisition.views = ViewSharing::Interleaved;
+    cfg.missing = vec![[0, 0]];
+    let scene = simulate(&cfg, None, &Silent).unwrap();
+    for v in 0..8 {
+        let expect: Vec<usize> = match v {
+            0 => vec![],
+            1..6 => vec![v % 3],
+            _ => vec![0, 1, 2],
+        };
+        assert_eq!(scene.available_channels(v), expect, "view {v}");
+        for c in 0..3 {
+            let sum = scene.projections.slice(s![c, v, .., ..]).sum();
+            assert_eq!(
+                sum > 0.0,
+                expect.contains(&c),
+                "view {v} channel {c}: {sum}"
+            );
+        }
+    }
+    let yaml = "name: t\nviews: interleaved\n";
+    let e = serde_yaml_ng::from_str::<Acquisition>(yaml)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("name"), "{e}");
+}
+
+/// Photon-counting bins split one exposure: the air pixels' line-integral variance is
+/// 1/(i0·share) (Poisson counts, first order), so a bin with a quarter of the photons is twice
+/// as noisy (in σ) as a channel with all of them.
+#[test]
+fn split_photons_give_each_bin_its_share_of_the_noise_budget() {
+    let mut cfg = tiny_config_with("phantom: { radius_mm: 20.0 }");
+    cfg.channels = vec![
+        ChannelSpec::Window {
+            lo_kev: 20.0,
+            hi_kev: 100.0,
+            kvp: 100,
+            filtration: Default::default(),
+        },
+        ChannelSpec::Window {
+            lo_kev: 60.0,
+            hi_kev: 100.0,
+            kvp: 100,
+            filtration: Default::default(),
+        },
+    ];
+    cfg.noise = Some(NoiseModel {
+        i0: 1.0e4,
+        electronic_sigma: 0.0,
+    });
+    cfg.acquisition.photons = PhotonSharing::Split;
+    let scene = simulate(&cfg, None, &Silent).unwrap();
+    for (c, spec) in cfg.channels.iter().enumerate() {
+        let share = spec.photon_share().unwrap();
+        // Air: the detector's outer columns (the 20 mm phantom covers the middle few).
+        let air: Vec<f64> = scene
+            .projections
+            .slice(s![c, ..6, .., ..4])
+            .iter()
+            .map(|&x| x as f64)
+            .collect();
+        let n = air.len() as f64;
+        let mean = air.iter().sum::<f64>() / n;
+        let var = air.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        let expect = 1.0 / (1.0e4 * share);
+        // 768 samples: the sample variance's relative standard error is √(2/767) ≈ 5 %.
+        assert!(
+            (var / expect - 1.0).abs() < 0.2,
+            "channel {c}: share {share}, var {var} vs {expect}"
+        );
+    }
+    let shares: Vec<f64> = cfg
+        .channels
+        .iter()
+        .map(|c| c.photon_share().unwrap())
+        .collect();
+    assert!(
+        (shares[0] - 1.0).abs() < 1e-9 && shares[1] < 0.7,
+        "{shares:?}"
+    );
+}
+
+#[test]
 fn hu_volume_scene_projects_its_fractions() {
     // A synthetic HU object stored as int16 (z, y, x): a water cylinder in the lower 3/4 of the
     // volume with a bone rod off-centre in x and y, running through the lower half only, so that

@@ -65,6 +65,8 @@ pub struct GaussianConfig {
     /// interrupted or diverges.
     pub checkpoint_every: usize,
     pub structural: StructuralSource,
+    /// `structural: joint`: the basis stage 1 fits every channel in.
+    pub joint: JointConfig,
     /// `4dsg`: stage 2 (curve model) settings.
     pub stage2: Stage2Config,
     /// Channel labels left out of training entirely; spectral methods predict them from the
@@ -94,6 +96,7 @@ impl Default for GaussianConfig {
             eval_every: 250,
             checkpoint_every: 0,
             structural: StructuralSource::default(),
+            joint: JointConfig::default(),
             stage2: Stage2Config::default(),
             holdout_channels: Vec::new(),
             device: DeviceChoice::default(),
@@ -442,11 +445,48 @@ impl DensifyConfig {
     }
 }
 
+/// Stage 1's joint fit (`structural: joint`; YAML `joint:`, every field optional): while the
+/// shared geometry is fitted to every channel's projections, each Gaussian carries one density
+/// per basis material and every channel is formed from them by the physics
+/// ([`super::spectral::BasisHead`]). Two materials of different effective atomic number span,
+/// between absorption edges, the photoelectric and Compton terms of every body material's
+/// μ(E), so the channels constrain one another without a per-channel density; at the end of the
+/// stage the densities become their channel mean, the common density stage 2 starts from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct JointConfig {
+    /// Basis materials (default water and cortical bone).
+    pub materials: Vec<prism_domain::physics::Material>,
+    /// Share of the start density each material after the first takes (default 0.05).
+    pub init_share: f64,
+}
+
+impl Default for JointConfig {
+    fn default() -> Self {
+        use prism_domain::physics::Material;
+        JointConfig {
+            materials: vec![Material::Water, Material::CorticalBone],
+            init_share: 0.05,
+        }
+    }
+}
+
+impl JointConfig {
+    /// The basis head's settings.
+    pub fn basis(&self) -> BasisConfig {
+        BasisConfig {
+            materials: self.materials.clone(),
+            init_share: self.init_share,
+        }
+    }
+}
+
 /// Where stage 1's structural projection comes from (YAML `structural:`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StructuralSource {
-    /// The scene's measured full-spectrum projection when it has one, else `mean`.
+    /// The scene's measured full-spectrum projection when it has one; else `mean` when every
+    /// training view has every channel; else `joint`.
     #[default]
     Auto,
     /// Mean over the channels at each view (conventional spectral CT); views where a channel is
@@ -454,4 +494,9 @@ pub enum StructuralSource {
     Mean,
     /// The scene's measured full-spectrum projection (photon-counting); an error if absent.
     Provided,
+    /// Every measured projection of every channel at once, each channel formed from basis
+    /// densities ([`JointConfig`]), so channels measured at different angles (interleaved, kV
+    /// switching) all shape the geometry. Needs the channels' spectra (a simulated scene
+    /// records them; otherwise tube-voltage channels assume the default filtration).
+    Joint,
 }

@@ -47,7 +47,7 @@ fn run_on(cfg: &GaussianConfig, scene: &Scene, out: &Path, device: &Device) -> R
     run_from(cfg, scene, out, device, None)
 }
 
-pub(super) fn tiny(method: GaussianMethod) -> GaussianConfig {
+pub(crate) fn tiny(method: GaussianMethod) -> GaussianConfig {
     let mut c = GaussianConfig::new(method);
     c.iterations = 40;
     c.density_iterations = 20;

@@ -52,7 +52,7 @@ pub struct Outcome {
 }
 
 #[cfg(test)]
-mod gaussian_tests;
+pub(crate) mod gaussian_tests;
 #[cfg(test)]
 mod resume_tests;
 #[cfg(test)]

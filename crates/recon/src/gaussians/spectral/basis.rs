@@ -50,12 +50,13 @@ impl BasisHead {
     /// ([`Decomposition::new`]).
     pub fn new(
         config: &BasisConfig,
+        section: &str,
         specs: &[ChannelSpec],
         world: &World,
         device: &Device,
     ) -> Result<BasisHead> {
-        let basis = config.validate()?;
-        let dec = Decomposition::new(basis.clone(), specs).map_err(|e| e.under("stage2"))?;
+        let basis = config.validate(section)?;
+        let dec = Decomposition::new(basis.clone(), specs).map_err(|e| e.under(section))?;
         let mats = basis.materials();
         let m = specs.len() as f64;
         let reference_mu: Vec<f64> = (0..mats.len())
@@ -179,6 +180,19 @@ impl BasisHead {
             for row in coef {
                 out.push(row.iter().zip(v).map(|(a, v)| a * v).sum());
             }
+        })
+    }
+
+    /// Raw common densities `[K, 1]` of a model whose density columns are the raw basis columns:
+    /// the channels' mean attenuation `Σ_b v_b·mean_c(μ̄_cb/μ̂_b)` (normalised), through the
+    /// inverse softplus; the density a structural stage would have fitted.
+    pub fn common_raw(&self, model: &GaussianModel) -> Tensor<2> {
+        let m = self.effective.len() as f64;
+        let mean: Vec<f64> = (0..self.reference_mu.len())
+            .map(|b| self.effective.iter().map(|row| row[b]).sum::<f64>() / m)
+            .collect();
+        mix_raw(&model.densities.value, |v, out| {
+            out.push(mean.iter().zip(v).map(|(a, v)| a * v).sum());
         })
     }
 

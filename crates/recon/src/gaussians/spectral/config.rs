@@ -107,7 +107,7 @@ impl Stage2Config {
             ));
         }
         if let Some(b) = &self.basis {
-            b.validate()?;
+            b.validate("stage2")?;
             if self.freeze.density {
                 return Err(Error::invalid(
                     "stage2.freeze.density",
@@ -140,13 +140,14 @@ impl Default for BasisConfig {
 }
 
 impl BasisConfig {
-    /// Check the basis and the start; errors name the field under `stage2.basis`.
-    pub fn validate(&self) -> Result<Basis> {
-        let basis = Basis::new(&self.materials).map_err(|e| Error::from(e).under("stage2"))?;
+    /// Check the basis and the start; errors name the field under `{section}.basis`
+    /// (`stage2`, or `joint` for stage 1's joint fit).
+    pub fn validate(&self, section: &str) -> Result<Basis> {
+        let basis = Basis::new(&self.materials).map_err(|e| Error::from(e).under(section))?;
         let others = (self.materials.len() - 1) as f64;
         if !(self.init_share > 0.0 && self.init_share * others < 1.0) {
             return Err(Error::invalid(
-                "stage2.basis.init_share",
+                format!("{section}.basis.init_share"),
                 format!(
                     "must be > 0 and leave the first material a positive share ({others} × {} ≥ 1)",
                     self.init_share

@@ -19,7 +19,7 @@ pub use checkpoints::Checkpoints;
 pub use data::{Supervision, View};
 pub use densify::DensifyCounts;
 pub use evaluator::Evaluator;
-pub use settings::Stage;
+pub use settings::{ChannelMap, Stage};
 pub use trainer::{DensifyStep, StepPlan, StepStats, Trainer, TrainerState};
 
 use crate::gaussians::GaussianModel;
@@ -188,10 +188,10 @@ impl Schedule<'_> {
 
 /// The score of a model in training (through its curve model or basis head in stage 2).
 fn score(e: &Evaluator, t: &Trainer, stage: &Stage) -> Result<(f64, f64)> {
-    match (t.curve(), stage.basis) {
+    match (t.curve(), stage.map) {
         (Some(c), _) => e.score_raw(t.model(), c.raw_densities(t.model())?),
-        (None, Some(h)) => e.score_raw(t.model(), h.channel_raw(t.model())),
-        (None, None) => e.score(t.model()),
+        (None, ChannelMap::Basis(h)) => e.score_raw(t.model(), h.channel_raw(t.model())),
+        (None, ChannelMap::Direct) => e.score(t.model()),
     }
 }
 

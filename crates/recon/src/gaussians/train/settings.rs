@@ -27,9 +27,37 @@ pub struct Stage<'a> {
     pub grid: &'a VolumeGrid,
     pub world: &'a World,
     pub seed: u64,
-    /// The basis-material head (4D-SG stage 2 with `stage2.basis`): the model's density columns
-    /// are basis materials and the head forms the supervised channels from their projections.
-    pub basis: Option<&'a BasisHead>,
+    /// How the rendered density columns become the supervised channels.
+    pub map: ChannelMap<'a>,
+}
+
+/// How a stage's rendered density columns become the channels it supervises.
+#[derive(Clone, Copy, Default)]
+pub enum ChannelMap<'a> {
+    /// Each column is a channel (or, with a curve model, the curve's channels).
+    #[default]
+    Direct,
+    /// The basis-material head (4D-SG's joint stage 1, and stage 2 with `stage2.basis`): the
+    /// columns are basis materials and the head forms the channels from their projections.
+    Basis(&'a BasisHead),
+}
+
+impl ChannelMap<'_> {
+    /// `(channels rendered, density columns the model needs)`, or None for [`ChannelMap::Direct`].
+    pub fn columns(&self) -> Option<(usize, usize)> {
+        match self {
+            ChannelMap::Direct => None,
+            ChannelMap::Basis(h) => Some((h.channels(), h.basis().materials().len())),
+        }
+    }
+
+    /// The channels' line integrals `[V, M, rows, cols]` from the rendered columns.
+    pub fn project(&self, rendered: burn::tensor::Tensor<4>) -> burn::tensor::Tensor<4> {
+        match self {
+            ChannelMap::Direct => rendered,
+            ChannelMap::Basis(h) => h.project(rendered),
+        }
+    }
 }
 
 impl<'a> Stage<'a> {
@@ -55,7 +83,7 @@ impl<'a> Stage<'a> {
             grid,
             world,
             seed: config.seed,
-            basis: None,
+            map: ChannelMap::Direct,
         }
     }
 

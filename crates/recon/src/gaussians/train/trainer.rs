@@ -113,9 +113,9 @@ impl<'a> Trainer<'a> {
         let Some(first) = sup.views.first() else {
             return Err(Error::invalid("views", "no training view to fit"));
         };
-        let (columns, needs) = match (&curve, stage.basis) {
+        let (columns, needs) = match (&curve, stage.map.columns()) {
             (Some(c), _) => (c.net.channels(), 1),
-            (None, Some(h)) => (h.channels(), h.basis().materials().len()),
+            (None, Some(map)) => map,
             (None, None) => (model.channels(), model.channels()),
         };
         if columns != sup.columns || model.channels() != needs {
@@ -262,9 +262,7 @@ impl<'a> Trainer<'a> {
             probe.as_ref(),
             &stage.projection,
         )?;
-        if let Some(h) = stage.basis {
-            img = h.project(img);
-        }
+        img = stage.map.project(img);
         if let Some(c) = &view.columns {
             img = img.select(1, c.clone());
         }

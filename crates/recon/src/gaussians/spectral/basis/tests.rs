@@ -43,7 +43,7 @@ fn rendered() -> Vec<f32> {
 fn the_head_projects_as_the_simulator_synthesises() {
     let dev = cpu_device();
     let cfg = BasisConfig::default();
-    let head = BasisHead::new(&cfg, &specs(), &WORLD, &dev).unwrap();
+    let head = BasisHead::new(&cfg, "stage2", &specs(), &WORLD, &dev).unwrap();
     let r = rendered();
     let img = Tensor::<4>::from_data(TensorData::new(r.clone(), [1, 3, 2, 2]), &dev);
     let out = host_values(&head.project(img));
@@ -79,7 +79,7 @@ fn the_head_gradient_matches_finite_differences() {
     let dev = cpu_device();
     let ad = dev.clone().autodiff();
     let cfg = BasisConfig::default();
-    let head = BasisHead::new(&cfg, &specs(), &WORLD, &ad).unwrap();
+    let head = BasisHead::new(&cfg, "stage2", &specs(), &WORLD, &ad).unwrap();
     let r = rendered();
     let x = Tensor::<4>::from_data(TensorData::new(r.clone(), [1, 3, 2, 2]), &ad).require_grad();
     // Loss: Σ_c (c+1)·Σ_px p_c(px), so every channel's gradient counts.
@@ -136,7 +136,7 @@ fn the_head_gradient_matches_finite_differences() {
 fn the_start_keeps_the_structural_density() {
     let dev = cpu_device();
     let cfg = BasisConfig::default();
-    let head = BasisHead::new(&cfg, &specs(), &WORLD, &dev).unwrap();
+    let head = BasisHead::new(&cfg, "stage2", &specs(), &WORLD, &dev).unwrap();
     let u = [-3.0f32, 0.0, 0.7, 4.0];
     let raw = head.initial_raw(&u);
     let mut host = HostGaussians::empty(3);
@@ -183,7 +183,7 @@ fn bad_bases_are_refused() {
         ChannelSpec::Mono { kev: 60.0 },
         ChannelSpec::Mono { kev: 80.0 },
     ];
-    let e = BasisHead::new(&BasisConfig::default(), &two, &WORLD, &dev)
+    let e = BasisHead::new(&BasisConfig::default(), "stage2", &two, &WORLD, &dev)
         .err()
         .unwrap()
         .to_string();
@@ -195,12 +195,12 @@ fn bad_bases_are_refused() {
         init_share: 0.5,
         ..BasisConfig::default()
     };
-    let e = cfg.validate().unwrap_err().to_string();
+    let e = cfg.validate("stage2").unwrap_err().to_string();
     assert!(e.contains("stage2.basis.init_share"), "{e}");
     let cfg = BasisConfig {
         materials: vec![Material::Water, Material::Water],
         ..BasisConfig::default()
     };
-    let e = cfg.validate().unwrap_err().to_string();
+    let e = cfg.validate("stage2").unwrap_err().to_string();
     assert!(e.contains("stage2.basis") && e.contains("twice"), "{e}");
 }

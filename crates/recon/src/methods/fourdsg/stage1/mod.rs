@@ -1,19 +1,30 @@
-//! 4D-SG stage 1: one set of Gaussians, the geometry shared by every channel, trained on the
-//! structural projections (the mean over the channels at each view, or a measured
-//! full-spectrum projection), and its checkpoint ([`checkpoint`]) from which the spectral stage
-//! can start in another run.
+//! 4D-SG stage 1: one set of Gaussians, the geometry shared by every channel, and its
+//! checkpoint ([`checkpoint`]) from which the spectral stage can start in another run.
+//!
+//! What it fits (`structural:`): a structural projection at each view (the mean over the
+//! channels, or a measured full-spectrum projection), or, jointly, every measured projection of
+//! every channel, each formed from per-Gaussian basis densities by the physics
+//! ([`crate::gaussians::config::JointConfig`]), which end as their channel mean. The joint fit is what lets channels measured at
+//! different angles (interleaved acquisitions) share one geometry: it sees the union of their
+//! angles. `auto` takes the measured projection when the scene has one, the mean when every
+//! training view has every channel, and the joint fit otherwise.
 
 pub mod checkpoint;
 
+use crate::device::upload;
 use crate::gaussians::config::StructuralSource;
+use crate::gaussians::spectral::BasisHead;
+use crate::gaussians::spectral::gains::channel_ratios;
 use crate::gaussians::train::Evaluator;
 use crate::gaussians::train::data::image;
-use crate::gaussians::train::{Journal, Stage, Supervision};
+use crate::gaussians::train::{ChannelMap, Journal, Stage, Supervision};
 use crate::gaussians::{GaussianConfig, GaussianModel, World};
 use crate::init::initial_model;
 use crate::{Error, Result};
 use burn::tensor::Device;
 use ndarray::{Array3, Axis, s};
+use prism_domain::decompose::channel_specs;
+use prism_domain::observe::Level;
 use prism_domain::scene::Scene;
 
 /// Stage 1's result: the shared geometry (with the common raw density) and its world.
@@ -21,25 +32,66 @@ use prism_domain::scene::Scene;
 pub struct SharedGeometry {
     pub model: GaussianModel,
     pub world: World,
-    /// The views of the structural projections.
+    /// The views stage 1 fitted.
     pub views: Vec<usize>,
 }
 
-/// The structural projections of `scene`: `(views, images)`, each image `[rows][cols]`.
-pub fn structural(config: &GaussianConfig, scene: &Scene) -> Result<(Vec<usize>, Vec<Vec<f32>>)> {
-    let provided = scene.structural.as_ref();
-    match (config.structural, provided) {
-        (StructuralSource::Provided, None) => Err(Error::invalid(
-            "structural",
-            "`provided` needs a scene with a measured full-spectrum projection",
-        )),
-        (StructuralSource::Provided | StructuralSource::Auto, Some(p)) => {
+/// What stage 1 fits: per view (`views[i]`) the supervised images `images[i]` (`[n][rows][cols]`
+/// line integrals) of the channels `columns[i]` (None: every column), among `total` columns;
+/// `start[i]` the one image (`[rows][cols]`) whose FDK the Gaussians start from.
+pub struct Targets {
+    pub source: StructuralSource,
+    pub views: Vec<usize>,
+    pub images: Vec<Vec<f32>>,
+    pub columns: Vec<Option<Vec<usize>>>,
+    pub total: usize,
+    pub start: Vec<Vec<f32>>,
+}
+
+/// The source `auto` stands for in `scene`, or `source` itself.
+pub fn resolve(source: StructuralSource, scene: &Scene) -> StructuralSource {
+    if source != StructuralSource::Auto {
+        return source;
+    }
+    let m = scene.n_channels();
+    if scene.structural.is_some() {
+        StructuralSource::Provided
+    } else if scene
+        .train_views()
+        .iter()
+        .all(|&v| (0..m).all(|c| scene.availability[[v, c]]))
+    {
+        StructuralSource::Mean
+    } else {
+        StructuralSource::Joint
+    }
+}
+
+/// Stage 1's targets in `scene` (see [`Targets`]).
+pub fn targets(config: &GaussianConfig, scene: &Scene) -> Result<Targets> {
+    let source = resolve(config.structural, scene);
+    let m = scene.n_channels();
+    let single = |views: Vec<usize>, images: Vec<Vec<f32>>| Targets {
+        source,
+        columns: vec![None; views.len()],
+        views,
+        start: images.clone(),
+        images,
+        total: 1,
+    };
+    match source {
+        StructuralSource::Provided => {
+            let Some(p) = scene.structural.as_ref() else {
+                return Err(Error::invalid(
+                    "structural",
+                    "`provided` needs a scene with a measured full-spectrum projection",
+                ));
+            };
             let views = scene.train_views().to_vec();
             let images = views.iter().map(|&v| image(p.view(), v)).collect();
-            Ok((views, images))
+            Ok(single(views, images))
         }
-        _ => {
-            let m = scene.n_channels();
+        StructuralSource::Mean | StructuralSource::Auto => {
             let views: Vec<usize> = scene
                 .train_views()
                 .iter()
@@ -50,7 +102,8 @@ pub fn structural(config: &GaussianConfig, scene: &Scene) -> Result<(Vec<usize>,
                 return Err(Error::invalid(
                     "availability",
                     "no training view has every channel, so no mean structural projection \
-                     exists; provide a measured one (scene `structural`)",
+                     exists; use `structural: joint` (or `auto`), or provide a measured one \
+                     (scene `structural`)",
                 ));
             }
             let images = views
@@ -64,13 +117,63 @@ pub fn structural(config: &GaussianConfig, scene: &Scene) -> Result<(Vec<usize>,
                     mean.iter().copied().collect()
                 })
                 .collect();
-            Ok((views, images))
+            Ok(single(views, images))
         }
+        StructuralSource::Joint => joint_targets(scene),
     }
 }
 
-/// Train the shared geometry and common density of `scene` (its observed channels) from the
-/// structural projections, initialised from their FDK.
+/// Every training view with a measured channel, each supervising its channels; the FDK start
+/// at each view is the mean of its channels, each divided by its gain ([`channel_ratios`]: the
+/// channel's mean line integral over the channels').
+fn joint_targets(scene: &Scene) -> Result<Targets> {
+    let m = scene.n_channels();
+    let views: Vec<usize> = scene
+        .train_views()
+        .iter()
+        .copied()
+        .filter(|&v| (0..m).any(|c| scene.availability[[v, c]]))
+        .collect();
+    if views.is_empty() {
+        return Err(Error::invalid(
+            "availability",
+            "no training view has a measured channel",
+        ));
+    }
+    let gains = channel_ratios(scene, &views);
+    let (mut images, mut columns, mut start) = (Vec::new(), Vec::new(), Vec::new());
+    for &v in &views {
+        let avail = scene.available_channels(v);
+        let mut img = Vec::new();
+        let mut common = vec![0.0f64; scene.geometry.detector.rows * scene.geometry.detector.cols];
+        for &c in &avail {
+            let view = scene
+                .channel_projections(c)
+                .index_axis(Axis(0), v)
+                .to_owned();
+            let w = 1.0 / (gains[c] * avail.len() as f64);
+            common
+                .iter_mut()
+                .zip(view.iter())
+                .for_each(|(a, &p)| *a += p as f64 * w);
+            img.extend(view.iter().copied());
+        }
+        images.push(img);
+        start.push(common.into_iter().map(|x| x as f32).collect());
+        columns.push((avail.len() < m).then_some(avail));
+    }
+    Ok(Targets {
+        source: StructuralSource::Joint,
+        views,
+        images,
+        columns,
+        total: m,
+        start,
+    })
+}
+
+/// Train the shared geometry and common density of `scene` (its observed channels) on stage 1's
+/// [`targets`], initialised from the FDK of their start images.
 pub fn train_shared_geometry(
     config: &GaussianConfig,
     scene: &Scene,
@@ -78,31 +181,72 @@ pub fn train_shared_geometry(
     journal: &mut Journal,
 ) -> Result<SharedGeometry> {
     let geometry = &scene.geometry;
-    let (sviews, simages) = structural(config, scene)?;
+    let t = targets(config, scene)?;
     let mut stack = Array3::<f32>::zeros((
         geometry.views(),
         geometry.detector.rows,
         geometry.detector.cols,
     ));
-    for (v, img) in sviews.iter().zip(&simages) {
+    for (v, img) in t.views.iter().zip(&t.start) {
         stack
             .index_axis_mut(Axis(0), *v)
             .iter_mut()
             .zip(img)
             .for_each(|(a, b)| *a = *b);
     }
-    let (mut model, world) = initial_model(config, geometry, stack.view(), &sviews, device)?;
-    let sup = Supervision::single(geometry, &world, &sviews, simages, device);
+    let (mut model, world) = initial_model(config, geometry, stack.view(), &t.views, device)?;
+    let sup = Supervision::new(
+        geometry, &world, &t.views, t.images, t.columns, t.total, device,
+    );
+    let head = if t.source == StructuralSource::Joint {
+        let (specs, exact) = channel_specs(scene)?;
+        if !exact {
+            journal.observer.note(
+                Level::Warning,
+                "the scene does not record its channels' spectra: the joint stage 1 assumes the \
+                 default filtration for tube-voltage and mixed channels",
+            );
+        }
+        let h = BasisHead::new(
+            &config.joint.basis(),
+            "joint",
+            &specs,
+            &world,
+            &device.clone().autodiff(),
+        )?;
+        let start = h.initial_raw(&model.to_host().densities);
+        model.set_densities(upload(start, h.basis().materials().len(), device));
+        Some(h)
+    } else {
+        None
+    };
+    // The joint fit is scored per channel, a structural one against the channels' mean.
     let eval = scene.references.as_ref().map(|r| Evaluator {
         grid: geometry.volume.clone(),
         world,
-        references: vec![r.mean_axis(Axis(0)).expect("at least one channel")],
+        references: match head {
+            Some(_) => r.outer_iter().map(|c| c.to_owned()).collect(),
+            None => vec![r.mean_axis(Axis(0)).expect("at least one channel")],
+        },
     });
-    let stage = Stage::geometry(config, "geometry", "structural", &geometry.volume, &world);
+    let (channel, map) = match &head {
+        Some(h) => ("joint", ChannelMap::Basis(h)),
+        None => ("structural", ChannelMap::Direct),
+    };
+    let stage = Stage {
+        map,
+        ..Stage::geometry(config, "geometry", channel, &geometry.volume, &world)
+    };
     journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
+    if let Some(h) = &head {
+        model.set_densities(h.common_raw(&model));
+    }
     Ok(SharedGeometry {
         model,
         world,
-        views: sviews,
+        views: t.views,
     })
 }
+
+#[cfg(test)]
+mod tests;

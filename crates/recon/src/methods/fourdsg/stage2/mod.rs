@@ -16,10 +16,11 @@ use crate::Result;
 use crate::device::upload;
 use crate::gaussians::finish::{SharedModel, Trained};
 use crate::gaussians::host::{inverse_softplus, softplus};
+use crate::gaussians::spectral::gains::channel_ratios;
 use crate::gaussians::spectral::{BasisHead, CurveFit};
 use crate::gaussians::train::Evaluator;
 use crate::gaussians::train::data::image;
-use crate::gaussians::train::{Journal, Stage, Supervision};
+use crate::gaussians::train::{ChannelMap, Journal, Stage, Supervision};
 use crate::gaussians::{GaussianConfig, GaussianMethod, GaussianModel, Learnable, World};
 use crate::methods::fourdsg::stage1::SharedGeometry;
 use burn::optim::AdamConfig;
@@ -105,11 +106,11 @@ pub fn train_spectral(
                      default filtration for tube-voltage and mixed channels",
                 );
             }
-            let h = BasisHead::new(cfg, &specs, &world, &device.clone().autodiff())?;
+            let h = BasisHead::new(cfg, "stage2", &specs, &world, &device.clone().autodiff())?;
             let start = h.initial_raw(&model.to_host().densities);
             model.set_densities(upload(start, cfg.materials.len(), device));
             let stage = Stage {
-                basis: Some(&h),
+                map: ChannelMap::Basis(&h),
                 ..Stage::spectral(config, "basis", &geometry.volume, &world)
             };
             journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
@@ -200,28 +201,5 @@ fn spectral_baseline(sorted: &[f32], ratios: &[f64]) -> Vec<f32> {
     ratios
         .iter()
         .map(|&r| (inverse_softplus(a * r) - u) as f32)
-        .collect()
-}
-
-/// Mean line integral of each channel over the structural views, divided by the structural mean.
-fn channel_ratios(scene: &Scene, views: &[usize]) -> Vec<f64> {
-    let m = scene.n_channels();
-    let means: Vec<f64> = (0..m)
-        .map(|c| {
-            let p = scene.channel_projections(c);
-            let (sum, n) = views.iter().fold((0.0f64, 0usize), |(s, n), &v| {
-                let img = p.index_axis(Axis(0), v);
-                (
-                    s + img.iter().map(|&x| x as f64).sum::<f64>(),
-                    n + img.len(),
-                )
-            });
-            sum / n.max(1) as f64
-        })
-        .collect();
-    let mean = means.iter().sum::<f64>() / m as f64;
-    means
-        .iter()
-        .map(|&x| if mean > 0.0 && x > 0.0 { x / mean } else { 1.0 })
         .collect()
 }

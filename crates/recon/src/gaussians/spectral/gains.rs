@@ -1,0 +1,34 @@
+//! The channels' gains: each channel's mean line integral over the channels', the ratio of its
+//! attenuation to the channel mean (over a full set of views the mean line integral is the
+//! object's integrated attenuation). Stage 1 divides by them to start the joint fit from one
+//! common image per view, and stage 2 starts its curve model from them.
+
+use ndarray::Axis;
+use prism_domain::scene::Scene;
+
+/// Each channel's mean line integral over those of `views` at which it was measured, divided by
+/// the mean of these over the channels (1 for a channel with no measured view or no attenuation).
+pub fn channel_ratios(scene: &Scene, views: &[usize]) -> Vec<f64> {
+    let m = scene.n_channels();
+    let means: Vec<f64> = (0..m)
+        .map(|c| {
+            let p = scene.channel_projections(c);
+            let (sum, n) = views.iter().filter(|&&v| scene.availability[[v, c]]).fold(
+                (0.0f64, 0usize),
+                |(s, n), &v| {
+                    let img = p.index_axis(Axis(0), v);
+                    (
+                        s + img.iter().map(|&x| x as f64).sum::<f64>(),
+                        n + img.len(),
+                    )
+                },
+            );
+            sum / n.max(1) as f64
+        })
+        .collect();
+    let mean = means.iter().sum::<f64>() / m as f64;
+    means
+        .iter()
+        .map(|&x| if mean > 0.0 && x > 0.0 { x / mean } else { 1.0 })
+        .collect()
+}
