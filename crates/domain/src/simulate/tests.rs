@@ -180,10 +180,9 @@ fn split_photons_give_each_bin_its_share_of_the_noise_budget() {
         .iter()
         .map(|c| c.photon_share().unwrap())
         .collect();
-    assert!(
-        (shares[0] - 1.0).abs() < 1e-9 && shares[1] < 0.7,
-        "{shares:?}"
-    );
+    // The 100 kVp tube has < 1 % of its photons below 20 keV and about a quarter above 60 keV.
+    assert!(shares[0] > 0.98 && shares[0] < 1.0, "{shares:?}");
+    assert!(shares[1] > 0.2 && shares[1] < 0.3, "{shares:?}");
 }
 
 #[test]
