@@ -5,6 +5,7 @@ use crate::gaussians::World;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use ndarray::{ArrayView3, Axis};
 use prism_domain::geometry::Geometry;
+use prism_domain::scene::Scene;
 use prism_render::Camera;
 
 /// One training view: its camera (normalised world) and the supervised density columns.
@@ -76,6 +77,41 @@ impl Supervision {
     ) -> Supervision {
         let all = vec![None; views.len()];
         Supervision::new(geometry, world, views, images, all, 1, device)
+    }
+}
+
+/// Every measured channel of a scene at every training view that has one: what a stage fitting
+/// all channels supervises ([`Supervision::new`] with `columns` and the scene's channel count).
+pub struct Measured {
+    pub views: Vec<usize>,
+    /// Per view, its measured channels' images in channel order (`[n][rows][cols]`).
+    pub images: Vec<Vec<f32>>,
+    /// Per view, its measured channels when not all of them.
+    pub columns: Vec<Option<Vec<usize>>>,
+}
+
+impl Measured {
+    pub fn of(scene: &Scene) -> Measured {
+        let m = scene.n_channels();
+        let (mut views, mut images, mut columns) = (Vec::new(), Vec::new(), Vec::new());
+        for &v in scene.train_views() {
+            let avail = scene.available_channels(v);
+            if avail.is_empty() {
+                continue;
+            }
+            let img = avail
+                .iter()
+                .flat_map(|&c| image(scene.channel_projections(c), v))
+                .collect();
+            views.push(v);
+            images.push(img);
+            columns.push((avail.len() < m).then_some(avail));
+        }
+        Measured {
+            views,
+            images,
+            columns,
+        }
     }
 }
 

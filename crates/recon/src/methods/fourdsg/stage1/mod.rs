@@ -16,7 +16,7 @@ use crate::gaussians::config::StructuralSource;
 use crate::gaussians::spectral::BasisHead;
 use crate::gaussians::spectral::gains::channel_ratios;
 use crate::gaussians::train::Evaluator;
-use crate::gaussians::train::data::image;
+use crate::gaussians::train::data::{Measured, image};
 use crate::gaussians::train::{ChannelMap, Journal, Stage, Supervision};
 use crate::gaussians::{GaussianConfig, GaussianModel, World};
 use crate::init::initial_model;
@@ -24,6 +24,7 @@ use crate::{Error, Result};
 use burn::tensor::Device;
 use ndarray::{Array3, Axis, s};
 use prism_domain::decompose::channel_specs;
+use prism_domain::geometry::Geometry;
 use prism_domain::observe::Level;
 use prism_domain::scene::Scene;
 
@@ -127,49 +128,60 @@ pub fn targets(config: &GaussianConfig, scene: &Scene) -> Result<Targets> {
 /// at each view is the mean of its channels, each divided by its gain ([`channel_ratios`]: the
 /// channel's mean line integral over the channels').
 fn joint_targets(scene: &Scene) -> Result<Targets> {
-    let m = scene.n_channels();
-    let views: Vec<usize> = scene
-        .train_views()
-        .iter()
-        .copied()
-        .filter(|&v| (0..m).any(|c| scene.availability[[v, c]]))
-        .collect();
-    if views.is_empty() {
+    let measured = Measured::of(scene);
+    if measured.views.is_empty() {
         return Err(Error::invalid(
             "availability",
             "no training view has a measured channel",
         ));
     }
-    let gains = channel_ratios(scene, &views);
-    let (mut images, mut columns, mut start) = (Vec::new(), Vec::new(), Vec::new());
-    for &v in &views {
-        let avail = scene.available_channels(v);
-        let mut img = Vec::new();
-        let mut common = vec![0.0f64; scene.geometry.detector.rows * scene.geometry.detector.cols];
-        for &c in &avail {
-            let view = scene
-                .channel_projections(c)
-                .index_axis(Axis(0), v)
-                .to_owned();
-            let w = 1.0 / (gains[c] * avail.len() as f64);
-            common
-                .iter_mut()
-                .zip(view.iter())
-                .for_each(|(a, &p)| *a += p as f64 * w);
-            img.extend(view.iter().copied());
-        }
-        images.push(img);
-        start.push(common.into_iter().map(|x| x as f32).collect());
-        columns.push((avail.len() < m).then_some(avail));
-    }
+    let gains = channel_ratios(scene, &measured.views);
+    let pixels = scene.geometry.detector.rows * scene.geometry.detector.cols;
+    let start = measured
+        .views
+        .iter()
+        .zip(&measured.images)
+        .map(|(&v, img)| {
+            let avail = scene.available_channels(v);
+            let mut common = vec![0.0f64; pixels];
+            for (&c, channel) in avail.iter().zip(img.chunks(pixels)) {
+                let w = 1.0 / (gains[c] * avail.len() as f64);
+                common
+                    .iter_mut()
+                    .zip(channel)
+                    .for_each(|(a, &p)| *a += p as f64 * w);
+            }
+            common.into_iter().map(|x| x as f32).collect()
+        })
+        .collect();
     Ok(Targets {
         source: StructuralSource::Joint,
-        views,
-        images,
-        columns,
-        total: m,
+        views: measured.views,
+        images: measured.images,
+        columns: measured.columns,
+        total: scene.n_channels(),
         start,
     })
+}
+
+impl Targets {
+    /// The start images in a `[view][row][col]` stack of `geometry`'s views (zero elsewhere), for
+    /// the FDK the Gaussians start from.
+    pub fn start_stack(&self, geometry: &Geometry) -> Array3<f32> {
+        let mut stack = Array3::<f32>::zeros((
+            geometry.views(),
+            geometry.detector.rows,
+            geometry.detector.cols,
+        ));
+        for (v, img) in self.views.iter().zip(&self.start) {
+            stack
+                .index_axis_mut(Axis(0), *v)
+                .iter_mut()
+                .zip(img)
+                .for_each(|(a, b)| *a = *b);
+        }
+        stack
+    }
 }
 
 /// Train the shared geometry and common density of `scene` (its observed channels) on stage 1's
@@ -182,18 +194,7 @@ pub fn train_shared_geometry(
 ) -> Result<SharedGeometry> {
     let geometry = &scene.geometry;
     let t = targets(config, scene)?;
-    let mut stack = Array3::<f32>::zeros((
-        geometry.views(),
-        geometry.detector.rows,
-        geometry.detector.cols,
-    ));
-    for (v, img) in t.views.iter().zip(&t.start) {
-        stack
-            .index_axis_mut(Axis(0), *v)
-            .iter_mut()
-            .zip(img)
-            .for_each(|(a, b)| *a = *b);
-    }
+    let stack = t.start_stack(geometry);
     let (mut model, world) = initial_model(config, geometry, stack.view(), &t.views, device)?;
     let sup = Supervision::new(
         geometry, &world, &t.views, t.images, t.columns, t.total, device,

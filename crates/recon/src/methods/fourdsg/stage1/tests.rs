@@ -75,14 +75,7 @@ fn the_joint_loss_is_the_sum_of_the_per_channel_losses_where_they_exist() {
     let t = targets(&cfg, &sc).unwrap();
     assert_eq!(t.views, (0..24).collect::<Vec<_>>());
     assert_eq!(t.total, 2);
-    let mut stack = Array3::<f32>::zeros((28, 40, 40));
-    for (v, img) in t.views.iter().zip(&t.start) {
-        stack
-            .index_axis_mut(Axis(0), *v)
-            .iter_mut()
-            .zip(img)
-            .for_each(|(a, b)| *a = *b);
-    }
+    let stack = t.start_stack(&sc.geometry);
     let (mut model, world) =
         initial_model(&cfg, &sc.geometry, stack.view(), &t.views, &dev).unwrap();
     let sup = Supervision::new(

@@ -19,7 +19,7 @@ use crate::gaussians::host::{inverse_softplus, softplus};
 use crate::gaussians::spectral::gains::channel_ratios;
 use crate::gaussians::spectral::{BasisHead, CurveFit};
 use crate::gaussians::train::Evaluator;
-use crate::gaussians::train::data::image;
+use crate::gaussians::train::data::Measured;
 use crate::gaussians::train::{ChannelMap, Journal, Stage, Supervision};
 use crate::gaussians::{GaussianConfig, GaussianMethod, GaussianModel, Learnable, World};
 use crate::methods::fourdsg::stage1::SharedGeometry;
@@ -68,25 +68,16 @@ pub fn train_spectral(
         views: sviews,
     } = shared;
 
-    // Every available channel at every training view.
-    let all_views: Vec<usize> = scene
-        .train_views()
-        .iter()
-        .copied()
-        .filter(|&v| (0..m).any(|c| scene.availability[[v, c]]))
-        .collect();
-    let mut images = Vec::new();
-    let mut columns = Vec::new();
-    for &v in &all_views {
-        let avail = scene.available_channels(v);
-        let mut img = Vec::new();
-        for &c in &avail {
-            img.extend(image(scene.channel_projections(c), v));
-        }
-        images.push(img);
-        columns.push((avail.len() < m).then_some(avail));
-    }
-    let sup = Supervision::new(geometry, &world, &all_views, images, columns, m, device);
+    let measured = Measured::of(scene);
+    let sup = Supervision::new(
+        geometry,
+        &world,
+        &measured.views,
+        measured.images,
+        measured.columns,
+        m,
+        device,
+    );
     let eval = scene.references.as_ref().map(|r| Evaluator {
         grid: geometry.volume.clone(),
         world,
