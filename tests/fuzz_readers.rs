@@ -25,7 +25,7 @@ use prism_domain::simulate::SimulateConfig;
 use prism_recon::MethodConfig;
 use prism_recon::device::cpu_device;
 use prism_recon::evaluate::Evaluation;
-use prism_recon::gaussians::{GaussianConfig, GaussianMethod};
+use prism_recon::methods::fourdsg::FourDsgConfig;
 use prism_recon::methods::fourdsg::stage1::checkpoint;
 use prism_recon::pipeline::run;
 use prism_recon::record::RunDir;
@@ -68,7 +68,7 @@ fn seeds() -> &'static Seeds {
         prism_domain::testing::write_r2_case(&r2);
         let run_dir = dir.path().join("run");
         let mut c = tiny_4dsg();
-        c.eval_every = 0;
+        c.geometry.eval_every = 0;
         let options = RunOptions {
             device: cpu_device(),
             from_geometry: None,
@@ -76,7 +76,7 @@ fn seeds() -> &'static Seeds {
             evaluation: &Evaluation::default(),
             checkpoint: None,
         };
-        let config = MethodConfig::Gaussian(Box::new(c));
+        let config = MethodConfig::from(c);
         let s = Scene::open(&scene).unwrap();
         run(
             &config,
@@ -95,14 +95,15 @@ fn seeds() -> &'static Seeds {
     })
 }
 
-fn tiny_4dsg() -> GaussianConfig {
-    let mut c = GaussianConfig::new(GaussianMethod::FourDsg);
-    c.iterations = 2;
-    c.init.n_points = 40;
-    c.densify = None;
-    c.stage2.iterations = 1;
-    c.stage2.curve_model.width = 4;
-    c.stage2.curve_model.depth = 1;
+fn tiny_4dsg() -> FourDsgConfig {
+    let mut c = FourDsgConfig::default();
+    c.geometry.iterations = 2;
+    c.geometry.init.n_points = 40;
+    c.geometry.densify = None;
+    let s2 = &mut c.spectral.stage2;
+    s2.iterations = 1;
+    s2.curve_model.width = 4;
+    s2.curve_model.depth = 1;
     c
 }
 

@@ -6,7 +6,7 @@ use crate::progress::Bars;
 use anyhow::bail;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
-use prism_recon::gaussians::GaussianMethod;
+use prism_recon::methods::fourdsg::FourDsgMethod;
 use prism_recon::methods::fourdsg::ablation::{Study, ablate, markdown};
 use std::path::PathBuf;
 
@@ -48,7 +48,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .gaussian
         .options(&mut config, &bars, &evaluation, None)?;
     let base = match &config {
-        MethodConfig::Gaussian(c) if c.method == GaussianMethod::FourDsg => c,
+        MethodConfig::FourDsg(c) if c.method == FourDsgMethod::Full => c,
         _ => bail!(
             "{}: field `method`: ablations vary stage 2 and need `method: 4dsg`",
             args.config.display()

@@ -18,7 +18,7 @@ use prism_domain::simulate::{SimulateConfig, simulate};
 use prism_recon::MethodConfig;
 use prism_recon::device::DeviceChoice;
 use prism_recon::evaluate::Evaluation;
-use prism_recon::gaussians::GaussianMethod;
+use prism_recon::methods::fourdsg::FourDsgMethod;
 use prism_recon::methods::fourdsg::ablation::ablate;
 use prism_recon::pipeline::{footprint, run};
 use prism_recon::record::RunDir;
@@ -257,7 +257,7 @@ pub fn run_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Res
         (CellKind::Run, _) => {
             run(&config, &scene, dir, &run_options)?;
         }
-        (CellKind::Ablation(study), MethodConfig::Gaussian(base)) => {
+        (CellKind::Ablation(study), MethodConfig::FourDsg(base)) => {
             ablate(base, study, &scene, dir, &run_options)?;
         }
         (CellKind::Ablation(_), _) => {
@@ -458,18 +458,18 @@ fn rough_cost(plan: &Plan, i: usize) -> u64 {
     };
     let base = match &config {
         MethodConfig::Classic(_) => 0,
-        MethodConfig::Gaussian(g) => {
-            let (shared, per_channel) = match g.method {
-                GaussianMethod::R2gs => (0, g.iterations),
-                GaussianMethod::Stage1 => (g.iterations, g.density_iterations),
-                GaussianMethod::FourDsg => (g.iterations, g.stage2.iterations),
+        MethodConfig::R2gs(r) => (r.geometry.iterations * channels) as u64,
+        MethodConfig::FourDsg(g) => {
+            let per_channel = match g.method {
+                FourDsgMethod::Stage1 => g.spectral.density_iterations,
+                FourDsgMethod::Full => g.spectral.stage2.iterations,
             };
-            (shared + per_channel * channels) as u64
+            (g.geometry.iterations + per_channel * channels) as u64
         }
         MethodConfig::Naf(n) => (n.iterations * channels * 4) as u64,
     };
     match (cell.kind, &config) {
-        (CellKind::Ablation(study), MethodConfig::Gaussian(g)) => {
+        (CellKind::Ablation(study), MethodConfig::FourDsg(g)) => {
             base * study.variants(g).len() as u64
         }
         _ => base,

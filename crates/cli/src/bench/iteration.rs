@@ -24,7 +24,6 @@ use prism_domain::metrics::quantile;
 use prism_domain::observe::{Level, Observer};
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
-use prism_recon::gaussians::config::GaussianMethod;
 use prism_recon::gaussians::train::StageReport;
 use prism_recon::pipeline::run;
 use prism_recon::record::RunDir;
@@ -115,19 +114,14 @@ fn copy_bandwidth() -> f64 {
 
 pub fn run_iteration(a: IterationArgs) -> anyhow::Result<serde_json::Value> {
     let mut config = MethodConfig::load_with(&a.config, &a.set.overrides()?)?;
-    let MethodConfig::Gaussian(g) = &mut config else {
-        anyhow::bail!(
-            "{}: `prism bench iteration` needs a Gaussian config",
-            a.config.display()
-        );
-    };
-    if g.method != GaussianMethod::R2gs {
+    let MethodConfig::R2gs(r) = &mut config else {
         anyhow::bail!(
             "{}: method `{}`: `prism bench iteration` measures R²-Gaussian (`r2gs`) iterations",
             a.config.display(),
-            g.method.name()
+            config.method().name()
         );
-    }
+    };
+    let g = &mut r.geometry;
     let until = g.densify.as_ref().map_or(0, |d| d.until);
     if a.window < 2 || g.iterations < until + a.window + 1 {
         anyhow::bail!(

@@ -1,51 +1,29 @@
-//! Configuration of the Gaussian methods (YAML `method: r2gs | 4dsg-stage1 | 4dsg`): every
-//! section of the YAML, each with one [`Default`] that states its defaults once; partial
-//! sections take the rest from it. The stages read their sections from here.
+//! The geometry stage's configuration ([`GeometryConfig`]): R²-Gaussian's whole configuration
+//! and the part of 4D-SG's that fits its shared geometry. Every section has one [`Default`]
+//! that states its defaults once; partial sections take the rest from it.
 
 use super::adam::LogLinear;
 use super::host::ScaleBounds;
 use crate::device::DeviceChoice;
 use crate::{Error, Result};
-use prism_domain::scene::Scene;
 use prism_render::{ProjectOptions, ProjectionMode};
 use serde::{Deserialize, Serialize};
-use std::path::Path;
 
 pub use super::spectral::config::{BasisConfig, Freeze, Stage2Config};
 
-/// The Gaussian reconstruction methods (their names: [`crate::Method`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(try_from = "crate::Method", into = "crate::Method")]
-pub enum GaussianMethod {
-    /// R²-Gaussian, every channel reconstructed independently.
-    R2gs,
-    /// 4D-SG stage 1: shared geometry from the structural projections, then per-channel densities
-    /// fitted directly on the fixed geometry (no curve model).
-    Stage1,
-    /// 4D-SG: stage 1 (shared geometry), then stage 2 (the curve model predicts every
-    /// Gaussian's raw density curve over the spectral grid).
-    FourDsg,
-}
-
-impl GaussianMethod {
-    pub fn name(self) -> &'static str {
-        crate::Method::from(self).name()
-    }
-}
-
-/// A Gaussian method's configuration. Lengths are in the normalised world (the volume's largest
-/// edge spans 2), densities in units of the FDK's 99.9th percentile. Every field has a default
-/// ([`GaussianConfig::default`]; `method` is read first, by [`crate::MethodConfig`]).
+/// The geometry stage's configuration: a set of 3D Gaussians initialised from FDK and fitted to
+/// projections. Lengths are in the normalised world (the volume's largest edge spans 2),
+/// densities in units of the FDK's 99.9th percentile. Every field has a default
+/// ([`GeometryConfig::default`]). Its fields are top-level keys of a method's YAML, beside the
+/// method's own; the method's loader refuses keys that no part of its config reads
+/// ([`flat`]), so this struct ignores unknown keys itself.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct GaussianConfig {
-    pub method: GaussianMethod,
+#[serde(default)]
+pub struct GeometryConfig {
     pub seed: u64,
     /// Iterations of the geometry stage (per channel for `r2gs`; upstream 30 000; default 1500,
     /// a CPU budget).
     pub iterations: usize,
-    /// `4dsg-stage1`: iterations of the per-channel density fit on the fixed geometry (default 500).
-    pub density_iterations: usize,
     pub init: InitConfig,
     /// Scale activation bounds as fractions of the normalised volume extent (upstream and default
     /// 0.0005, 0.5, i.e. 0.001 and 1.0 in normalised units).
@@ -64,26 +42,16 @@ pub struct GaussianConfig {
     /// `prism recon --resume` (`crate::gaussians::train::checkpoints`); 0 (default): only when the run is
     /// interrupted or diverges.
     pub checkpoint_every: usize,
-    pub structural: StructuralSource,
-    /// `structural: joint`: the basis stage 1 fits every channel in.
-    pub joint: JointConfig,
-    /// `4dsg`: stage 2 (curve model) settings.
-    pub stage2: Stage2Config,
-    /// Channel labels left out of training entirely; spectral methods predict them from the
-    /// curve of the observed channels and score the prediction (`holdout.json`).
-    pub holdout_channels: Vec<String>,
     /// Where training runs: `cpu` (Flex) or `wgpu` (the GPU, or lavapipe without one; needs a
     /// `prism` built with `--features wgpu`). `prism recon --device` overrides it.
     pub device: DeviceChoice,
 }
 
-impl Default for GaussianConfig {
+impl Default for GeometryConfig {
     fn default() -> Self {
-        GaussianConfig {
-            method: GaussianMethod::R2gs,
+        GeometryConfig {
             seed: 0,
             iterations: 1500,
-            density_iterations: 500,
             init: InitConfig::default(),
             scale_bounds: ScaleBounds {
                 min: 0.0005,
@@ -95,10 +63,6 @@ impl Default for GaussianConfig {
             densify: Some(DensifyConfig::default()),
             eval_every: 250,
             checkpoint_every: 0,
-            structural: StructuralSource::default(),
-            joint: JointConfig::default(),
-            stage2: Stage2Config::default(),
-            holdout_channels: Vec::new(),
             device: DeviceChoice::default(),
         }
     }
@@ -143,73 +107,7 @@ impl ProjectionConfig {
     }
 }
 
-impl GaussianConfig {
-    /// A configuration for `method` with every default.
-    pub fn new(method: GaussianMethod) -> Self {
-        GaussianConfig {
-            method,
-            ..GaussianConfig::default()
-        }
-    }
-
-    /// Indices of the held-out channels in `scene`; errors name unknown labels, held-out
-    /// channels at the ends of the spectral grid (they would need extrapolation), or a method
-    /// that cannot predict unobserved channels.
-    pub fn holdout_indices(&self, scene: &Scene) -> Result<Vec<usize>> {
-        if self.holdout_channels.is_empty() {
-            return Ok(Vec::new());
-        }
-        if self.method == GaussianMethod::R2gs {
-            return Err(Error::invalid(
-                "holdout_channels",
-                "r2gs reconstructs channels independently and cannot predict an unobserved one",
-            ));
-        }
-        let m = scene.n_channels();
-        let mut out = Vec::new();
-        for (i, label) in self.holdout_channels.iter().enumerate() {
-            let field = format!("holdout_channels[{i}]");
-            let c = scene
-                .channels
-                .iter()
-                .position(|ch| &ch.label == label)
-                .ok_or_else(|| {
-                    let known: Vec<&str> =
-                        scene.channels.iter().map(|c| c.label.as_str()).collect();
-                    Error::invalid(
-                        &field,
-                        format!("no channel `{label}` (channels: {known:?})"),
-                    )
-                })?;
-            if c == 0 || c + 1 == m {
-                return Err(Error::invalid(
-                    &field,
-                    format!(
-                        "`{label}` is at the end of the spectral grid: predicting it would need \
-                         extrapolation; hold out an intermediate channel"
-                    ),
-                ));
-            }
-            out.push(c);
-        }
-        out.sort_unstable();
-        out.dedup();
-        if m - out.len() < 2 {
-            return Err(Error::invalid(
-                "holdout_channels",
-                "at least two observed channels must remain",
-            ));
-        }
-        Ok(out)
-    }
-
-    pub fn from_yaml(text: &str, file: &Path) -> Result<Self> {
-        let cfg: GaussianConfig =
-            serde_yaml_ng::from_str(text).map_err(|e| prism_domain::yaml::error(file, &e))?;
-        cfg.validate().map_err(|e| e.in_file(file))?;
-        Ok(cfg)
-    }
-
+impl GeometryConfig {
     /// Scale bounds in normalised length units (the extent is 2).
     pub fn bounds(&self) -> ScaleBounds {
         ScaleBounds {
@@ -222,9 +120,6 @@ impl GaussianConfig {
         if self.iterations == 0 {
             return Err(Error::invalid("iterations", "must be at least 1"));
         }
-        if self.method == GaussianMethod::Stage1 && self.density_iterations == 0 {
-            return Err(Error::invalid("density_iterations", "must be at least 1"));
-        }
         self.init.validate()?;
         self.scale_bounds.validate()?;
         self.lr.validate()?;
@@ -232,9 +127,6 @@ impl GaussianConfig {
         self.projection.validate()?;
         if let Some(d) = &self.densify {
             d.validate()?;
-        }
-        if self.method == GaussianMethod::FourDsg {
-            self.stage2.validate()?;
         }
         Ok(())
     }
@@ -445,58 +337,72 @@ impl DensifyConfig {
     }
 }
 
-/// Stage 1's joint fit (`structural: joint`; YAML `joint:`, every field optional): while the
-/// shared geometry is fitted to every channel's projections, each Gaussian carries one density
-/// per basis material and every channel is formed from them by the physics
-/// ([`super::spectral::BasisHead`]). Two materials of different effective atomic number span,
-/// between absorption edges, the photoelectric and Compton terms of every body material's
-/// μ(E), so the channels constrain one another without a per-channel density; at the end of the
-/// stage the densities become their channel mean, the common density stage 2 starts from.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct JointConfig {
-    /// Basis materials (default water and cortical bone).
-    pub materials: Vec<prism_domain::physics::Material>,
-    /// Share of the start density each material after the first takes (default 0.05).
-    pub init_share: f64,
-}
+/// A method's YAML is one flat mapping: `method`, the geometry stage's keys and the method's own
+/// beside them. These read and write such a mapping part by part: each part is parsed from the
+/// text itself (serde_yaml_ng names field paths only when it reads text), and a top-level key
+/// that no part reads is refused, naming the file.
+pub mod flat {
+    use crate::{Error, Result};
+    use serde::Serialize;
+    use serde::de::DeserializeOwned;
+    use serde_yaml_ng::{Mapping, Value};
+    use std::path::Path;
 
-impl Default for JointConfig {
-    fn default() -> Self {
-        use prism_domain::physics::Material;
-        JointConfig {
-            materials: vec![Material::Water, Material::CorticalBone],
-            init_share: 0.05,
+    /// The top-level keys a part reads: the fields of its default.
+    pub fn keys<T: Serialize + Default>() -> Vec<String> {
+        match serde_yaml_ng::to_value(T::default()) {
+            Ok(Value::Mapping(m)) => m
+                .keys()
+                .filter_map(|k| k.as_str().map(String::from))
+                .collect(),
+            _ => Vec::new(),
         }
     }
-}
 
-impl JointConfig {
-    /// The basis head's settings.
-    pub fn basis(&self) -> BasisConfig {
-        BasisConfig {
-            materials: self.materials.clone(),
-            init_share: self.init_share,
-        }
+    /// One part of the flat mapping in `text` (keys of other parts are left to them).
+    pub fn read<T: DeserializeOwned>(text: &str, file: &Path) -> Result<T> {
+        serde_yaml_ng::from_str(text).map_err(|e| prism_domain::yaml::error(file, &e).into())
     }
-}
 
-/// Where stage 1's structural projection comes from (YAML `structural:`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum StructuralSource {
-    /// The scene's measured full-spectrum projection when it has one; else `mean` when every
-    /// training view has every channel; else `joint`.
-    #[default]
-    Auto,
-    /// Mean over the channels at each view (conventional spectral CT); views where a channel is
-    /// missing are left out of the structural stage.
-    Mean,
-    /// The scene's measured full-spectrum projection (photon-counting); an error if absent.
-    Provided,
-    /// Every measured projection of every channel at once, each channel formed from basis
-    /// densities ([`JointConfig`]), so channels measured at different angles (interleaved, kV
-    /// switching) all shape the geometry. Needs the channels' spectra (a simulated scene
-    /// records them; otherwise tube-voltage channels assume the default filtration).
-    Joint,
+    /// An error for the first top-level key of `text` outside `known` (and `method`).
+    pub fn refuse_unknown(text: &str, file: &Path, method: &str, known: &[String]) -> Result<()> {
+        let value: Value = serde_yaml_ng::from_str(text)
+            .map_err(|e| Error::from(prism_domain::yaml::error(file, &e)))?;
+        let Value::Mapping(m) = value else {
+            return Err(Error::field(file, ".", "expected a mapping of settings"));
+        };
+        for key in m.keys() {
+            let name = key.as_str().unwrap_or_default();
+            if name != "method" && !known.iter().any(|k| k == name) {
+                return Err(Error::field(
+                    file,
+                    if name.is_empty() { "." } else { name },
+                    format!(
+                        "`{method}` has no setting `{}` (its settings: method, {})",
+                        serde_yaml_ng::to_string(key).unwrap_or_default().trim(),
+                        known.join(", ")
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The parts (each `serde_yaml_ng::to_value` of a part) joined into one mapping, `method`
+    /// first, and serialised with `s`.
+    pub fn join<S: serde::Serializer>(
+        method: &str,
+        parts: Vec<serde_yaml_ng::Result<Value>>,
+        s: S,
+    ) -> std::result::Result<S::Ok, S::Error> {
+        let mut out = Mapping::new();
+        out.insert("method".into(), method.into());
+        for part in parts {
+            match part.map_err(serde::ser::Error::custom)? {
+                Value::Mapping(m) => out.extend(m),
+                _ => return Err(serde::ser::Error::custom("a config part is not a mapping")),
+            }
+        }
+        out.serialize(s)
+    }
 }

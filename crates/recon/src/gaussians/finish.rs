@@ -5,7 +5,7 @@
 use crate::evaluate::{Evaluation, Metrics, Reconstruction, TestProjector, metrics};
 use crate::gaussians::train::{Journal, StageReport};
 use crate::gaussians::volume::render_views;
-use crate::gaussians::{GaussianConfig, GaussianModel, World};
+use crate::gaussians::{GaussianModel, ProjectionConfig, World};
 use crate::record::RunDir;
 use crate::setup::{Setup, Volumes};
 use crate::{Error, Result};
@@ -81,7 +81,8 @@ pub(crate) struct Outputs {
 /// Write `train.json` and every channel's volume (observed ones fitted, held-out ones
 /// predicted); the scores of the observed channels (held-out ones are in `holdout.json`).
 pub(crate) fn finish(
-    config: &GaussianConfig,
+    method: &'static str,
+    projection: &ProjectionConfig,
     setup: &Setup,
     dir: &mut RunDir,
     journal: &mut Journal,
@@ -90,7 +91,7 @@ pub(crate) fn finish(
 ) -> Result<Option<Metrics>> {
     let train_s = journal.log.train_s();
     let summary = TrainSummary {
-        method: config.method.name(),
+        method,
         scene: &setup.full.name,
         wall_s: journal.log.wall_s(),
         train_s,
@@ -113,13 +114,13 @@ pub(crate) fn finish(
             fitted.push(v);
         }
     }
-    let options = config.projection.options();
+    let options = projection.options();
     let geometry = &setup.observed.geometry;
     let render = |c: usize, views: &[usize]| out.trained.render(geometry, &options, c, views);
     metrics(
         &setup.observed,
         &Reconstruction {
-            method: config.method.name(),
+            method,
             volumes: &fitted,
             views: &setup.views,
             wall_s: train_s,
@@ -127,7 +128,7 @@ pub(crate) fn finish(
             projector: TestProjector::Render {
                 what: format!(
                     "the Gaussian renderer ({} projection) from the trained model",
-                    config.projection.mode.name()
+                    projection.mode.name()
                 ),
                 render: &render,
             },

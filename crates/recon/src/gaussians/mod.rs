@@ -17,7 +17,7 @@ pub mod train;
 pub mod volume;
 pub mod world;
 
-pub use config::{GaussianConfig, GaussianMethod, ProjectionConfig};
+pub use config::{GeometryConfig, ProjectionConfig};
 pub use host::{HostGaussians, ScaleBounds};
 pub use model::{GaussianModel, Learnable};
 pub use world::World;

@@ -10,7 +10,7 @@
 use crate::algorithms::{Window, fdk};
 use crate::gaussians::config::{DensityRescale, InitConfig, RescaleRule};
 use crate::gaussians::host::{HostGaussians, ScaleBounds, inverse_softplus};
-use crate::gaussians::{GaussianConfig, GaussianModel, World};
+use crate::gaussians::{GaussianModel, GeometryConfig, World};
 use crate::{Error, Result};
 use burn::tensor::Device;
 use kiddo::SquaredEuclidean;
@@ -179,7 +179,7 @@ pub fn fdk_of(
 
 /// The initial model and its world from an FDK of `projections` at `views`.
 pub fn initial_model(
-    config: &GaussianConfig,
+    config: &GeometryConfig,
     geometry: &Geometry,
     projections: ArrayView3<f32>,
     views: &[usize],

@@ -16,17 +16,19 @@ pub mod naf;
 pub mod r2gs;
 
 use crate::device::DeviceChoice;
-use crate::gaussians::{GaussianConfig, GaussianMethod};
+use crate::gaussians::GeometryConfig;
 use crate::{Error, Result};
 use classic::{ClassicConfig, ClassicMethod};
+use fourdsg::{FourDsgConfig, FourDsgMethod};
 use naf::{NafConfig, NafMethod};
 use prism_domain::yaml::Overrides;
+use r2gs::R2gsConfig;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// A reconstruction method, as a config's `method:` names it. The one list of methods: their
 /// names ([`Method::name`]) are written here only; each family's enum ([`ClassicMethod`],
-/// [`GaussianMethod`], [`NafMethod`]) reads and writes its members through this one.
+/// [`FourDsgMethod`], [`NafMethod`]) reads and writes its members through this one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(try_from = "String", into = "&'static str")]
 pub enum Method {
@@ -43,7 +45,9 @@ pub enum Method {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Family {
     Classic(ClassicMethod),
-    Gaussian(GaussianMethod),
+    /// R²-Gaussian.
+    R2gs,
+    FourDsg(FourDsgMethod),
     /// Neural attenuation fields.
     Naf,
 }
@@ -54,9 +58,9 @@ impl Method {
             Method::Fdk => Family::Classic(ClassicMethod::Fdk),
             Method::Sart => Family::Classic(ClassicMethod::Sart),
             Method::Cgls => Family::Classic(ClassicMethod::Cgls),
-            Method::R2gs => Family::Gaussian(GaussianMethod::R2gs),
-            Method::FourDsgStage1 => Family::Gaussian(GaussianMethod::Stage1),
-            Method::FourDsg => Family::Gaussian(GaussianMethod::FourDsg),
+            Method::R2gs => Family::R2gs,
+            Method::FourDsgStage1 => Family::FourDsg(FourDsgMethod::Stage1),
+            Method::FourDsg => Family::FourDsg(FourDsgMethod::Full),
             Method::Naf => Family::Naf,
         }
     }
@@ -143,11 +147,11 @@ impl TryFrom<Method> for ClassicMethod {
     }
 }
 
-impl TryFrom<Method> for GaussianMethod {
+impl TryFrom<Method> for FourDsgMethod {
     type Error = String;
     fn try_from(m: Method) -> std::result::Result<Self, String> {
-        member(m, "a Gaussian", |f| match f {
-            Family::Gaussian(g) => Some(g),
+        member(m, "a 4D-SG", |f| match f {
+            Family::FourDsg(g) => Some(g),
             _ => None,
         })
     }
@@ -179,12 +183,11 @@ impl From<ClassicMethod> for Method {
     }
 }
 
-impl From<GaussianMethod> for Method {
-    fn from(m: GaussianMethod) -> Self {
+impl From<FourDsgMethod> for Method {
+    fn from(m: FourDsgMethod) -> Self {
         match m {
-            GaussianMethod::R2gs => Method::R2gs,
-            GaussianMethod::Stage1 => Method::FourDsgStage1,
-            GaussianMethod::FourDsg => Method::FourDsg,
+            FourDsgMethod::Stage1 => Method::FourDsgStage1,
+            FourDsgMethod::Full => Method::FourDsg,
         }
     }
 }
@@ -193,8 +196,21 @@ impl From<GaussianMethod> for Method {
 #[derive(Clone, Debug, PartialEq)]
 pub enum MethodConfig {
     Classic(ClassicConfig),
-    Gaussian(Box<GaussianConfig>),
+    R2gs(Box<R2gsConfig>),
+    FourDsg(Box<FourDsgConfig>),
     Naf(Box<NafConfig>),
+}
+
+impl From<R2gsConfig> for MethodConfig {
+    fn from(c: R2gsConfig) -> Self {
+        MethodConfig::R2gs(Box::new(c))
+    }
+}
+
+impl From<FourDsgConfig> for MethodConfig {
+    fn from(c: FourDsgConfig) -> Self {
+        MethodConfig::FourDsg(Box::new(c))
+    }
 }
 
 impl MethodConfig {
@@ -209,8 +225,11 @@ impl MethodConfig {
             .map_err(|e| Error::field(file, "method", e.to_string()))?;
         match method.family() {
             Family::Classic(_) => ClassicConfig::from_yaml(text, file).map(MethodConfig::Classic),
-            Family::Gaussian(_) => {
-                GaussianConfig::from_yaml(text, file).map(|c| MethodConfig::Gaussian(Box::new(c)))
+            Family::R2gs => {
+                R2gsConfig::from_yaml(text, file).map(|c| MethodConfig::R2gs(Box::new(c)))
+            }
+            Family::FourDsg(_) => {
+                FourDsgConfig::from_yaml(text, file).map(|c| MethodConfig::FourDsg(Box::new(c)))
             }
             Family::Naf => NafConfig::from_yaml(text, file).map(|c| MethodConfig::Naf(Box::new(c))),
         }
@@ -241,8 +260,18 @@ impl MethodConfig {
     pub fn method(&self) -> Method {
         match self {
             MethodConfig::Classic(c) => c.method.into(),
-            MethodConfig::Gaussian(c) => c.method.into(),
+            MethodConfig::R2gs(_) => Method::R2gs,
+            MethodConfig::FourDsg(c) => c.method.into(),
             MethodConfig::Naf(_) => Method::Naf,
+        }
+    }
+
+    /// The geometry stage's settings of a Gaussian method (R²-Gaussian, 4D-SG).
+    pub fn geometry(&self) -> Option<&GeometryConfig> {
+        match self {
+            MethodConfig::R2gs(c) => Some(&c.geometry),
+            MethodConfig::FourDsg(c) => Some(&c.geometry),
+            MethodConfig::Classic(_) | MethodConfig::Naf(_) => None,
         }
     }
 
@@ -250,7 +279,8 @@ impl MethodConfig {
     pub fn device(&self) -> DeviceChoice {
         match self {
             MethodConfig::Classic(_) => DeviceChoice::Cpu,
-            MethodConfig::Gaussian(c) => c.device,
+            MethodConfig::R2gs(c) => c.geometry.device,
+            MethodConfig::FourDsg(c) => c.geometry.device,
             MethodConfig::Naf(c) => c.device,
         }
     }
@@ -260,7 +290,8 @@ impl MethodConfig {
     pub fn set_device(&mut self, device: DeviceChoice) {
         match self {
             MethodConfig::Classic(_) => {}
-            MethodConfig::Gaussian(c) => c.device = device,
+            MethodConfig::R2gs(c) => c.geometry.device = device,
+            MethodConfig::FourDsg(c) => c.geometry.device = device,
             MethodConfig::Naf(c) => c.device = device,
         }
     }
@@ -269,7 +300,8 @@ impl MethodConfig {
     pub fn resolved_yaml(&self) -> Result<String> {
         let yaml = match self {
             MethodConfig::Classic(c) => serde_yaml_ng::to_string(&c.resolved()),
-            MethodConfig::Gaussian(c) => serde_yaml_ng::to_string(c),
+            MethodConfig::R2gs(c) => serde_yaml_ng::to_string(c),
+            MethodConfig::FourDsg(c) => serde_yaml_ng::to_string(c),
             MethodConfig::Naf(c) => serde_yaml_ng::to_string(c),
         };
         yaml.map_err(|e| Error::invalid("config", e.to_string()))
@@ -287,7 +319,7 @@ mod tests {
         assert!(matches!(c, MethodConfig::Classic(_)));
         assert_eq!(c.method(), Method::Sart);
         let c = MethodConfig::from_yaml("method: 4dsg-stage1\niterations: 5\n", f).unwrap();
-        assert!(matches!(c, MethodConfig::Gaussian(_)));
+        assert!(matches!(c, MethodConfig::FourDsg(_)));
         assert_eq!(c.method(), Method::FourDsgStage1);
         for (yaml, needles) in [
             (
@@ -315,6 +347,26 @@ mod tests {
                 &["run.yaml", "field.hash_grid.levels"],
             ),
             ("method: naf\nfield: {depth: 3}\n", &["run.yaml", "depth"]),
+            // A flat config refuses a key no part of the method reads, naming it: a typo, or
+            // 4D-SG's own sections under R²-Gaussian.
+            (
+                "method: 4dsg\niteration: 3\n",
+                &["run.yaml", "iteration", "`4dsg`"],
+            ),
+            (
+                "method: r2gs\nstage2: {iterations: 3}\n",
+                &["run.yaml", "stage2", "`r2gs` has no setting"],
+            ),
+            // Errors inside either part keep their field paths.
+            (
+                "method: 4dsg\nstage2: {iterations: many}\n",
+                &["run.yaml", "stage2.iterations"],
+            ),
+            ("method: 4dsg\nlr: {position: 3}\n", &["run.yaml", "lr"]),
+            (
+                "method: 4dsg-stage1\ndensity_iterations: 0\n",
+                &["run.yaml", "density_iterations"],
+            ),
         ] {
             let e = MethodConfig::from_yaml(yaml, f).unwrap_err().to_string();
             for n in needles {
@@ -328,34 +380,36 @@ mod tests {
         let f = Path::new("run.yaml");
         let yaml = "method: 4dsg\ninit: {n_points: 300}\ndensify: {every: 50}\n\
                     stage2: {freeze: {position: true}}\nloss: {lambda_tv: 0}\n";
-        let MethodConfig::Gaussian(c) = MethodConfig::from_yaml(yaml, f).unwrap() else {
-            panic!("a Gaussian config");
+        let four = MethodConfig::from_yaml(yaml, f).unwrap();
+        let MethodConfig::FourDsg(c) = &four else {
+            panic!("a 4D-SG config");
         };
-        let d = GaussianConfig::new(GaussianMethod::FourDsg);
-        assert_eq!(c.init.n_points, 300);
-        assert_eq!(c.init.threshold, d.init.threshold);
-        let densify = c.densify.unwrap();
+        let d = FourDsgConfig::default();
+        let (g, dg) = (&c.geometry, &d.geometry);
+        assert_eq!(g.init.n_points, 300);
+        assert_eq!(g.init.threshold, dg.init.threshold);
+        let densify = g.densify.as_ref().unwrap();
         assert_eq!(densify.every, 50);
-        assert_eq!(densify.until, d.densify.as_ref().unwrap().until);
-        assert!(c.stage2.freeze.position && !c.stage2.freeze.scale);
-        assert_eq!(c.stage2.iterations, d.stage2.iterations);
+        assert_eq!(densify.until, dg.densify.as_ref().unwrap().until);
+        let s2 = &c.spectral.stage2;
+        assert!(s2.freeze.position && !s2.freeze.scale);
+        assert_eq!(s2.iterations, d.spectral.stage2.iterations);
         assert_eq!(
-            (c.loss.lambda_tv, c.loss.lambda_dssim),
-            (0.0, d.loss.lambda_dssim)
+            (g.loss.lambda_tv, g.loss.lambda_dssim),
+            (0.0, dg.loss.lambda_dssim)
         );
         // `densify: null` turns densification off; an absent section keeps the default.
-        let MethodConfig::Gaussian(c) =
-            MethodConfig::from_yaml("method: r2gs\ndensify: null\n", f).unwrap()
-        else {
-            panic!("a Gaussian config");
+        let r2 = MethodConfig::from_yaml("method: r2gs\ndensify: null\n", f).unwrap();
+        let MethodConfig::R2gs(c) = &r2 else {
+            panic!("an R²-Gaussian config");
         };
-        assert!(c.densify.is_none());
-        // The resolved config reads back as the same config.
-        let resolved = MethodConfig::Gaussian(c.clone()).resolved_yaml().unwrap();
-        assert_eq!(
-            MethodConfig::from_yaml(&resolved, f).unwrap(),
-            MethodConfig::Gaussian(c)
-        );
+        assert!(c.geometry.densify.is_none());
+        // The resolved config reads back as the same config, one flat mapping.
+        for config in [four, r2] {
+            let resolved = config.resolved_yaml().unwrap();
+            assert!(resolved.starts_with("method: "), "{resolved}");
+            assert_eq!(MethodConfig::from_yaml(&resolved, f).unwrap(), config);
+        }
     }
 
     #[test]

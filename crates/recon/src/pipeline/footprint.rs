@@ -14,10 +14,9 @@
 //! The per-item constants were measured with `/usr/bin/time -v` (peak resident size) on runs of
 //! known size; see [`GAUSSIAN_BYTES`] and [`prism_domain::memory::PROCESS_BYTES`].
 
-use crate::MethodConfig;
 use crate::algorithms::sart::{block_count, caches_column_sums};
-use crate::gaussians::config::GaussianMethod;
 use crate::methods::classic::ClassicMethod;
+use crate::{Method, MethodConfig};
 use prism_domain::memory::{Footprint, bytes};
 use prism_domain::scene::Scene;
 
@@ -88,60 +87,8 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 );
             }
         }
-        MethodConfig::Gaussian(c) => {
-            let k = c
-                .densify
-                .as_ref()
-                .map_or(c.init.n_points, |d| d.max_gaussians.max(c.init.n_points));
-            let columns = match c.method {
-                GaussianMethod::FourDsg => channels,
-                GaussianMethod::R2gs | GaussianMethod::Stage1 => 1,
-            };
-            f.add(
-                "the FDK initialisation (volume and its filtered projections)",
-                bytes(voxels, 8).saturating_add(bytes(train * view_pixels, 4)),
-            );
-            f.add(
-                format!(
-                    "{k} Gaussians (at the densification cap; {} at the start), with gradients, \
-                     Adam moments and an iteration's transients",
-                    c.init.n_points
-                ),
-                bytes(k, (GAUSSIAN_BYTES + 16 * columns as u64) as usize),
-            );
-            if c.method == GaussianMethod::R2gs && channels > 1 {
-                let working = bytes(k, GAUSSIAN_BYTES as usize) as f64;
-                f.add(
-                    format!(
-                        "pages kept from earlier channels ({} × {:.0} % of the Gaussians' working \
-                         set)",
-                        channels - 1,
-                        100.0 * RETAINED_PER_CHANNEL
-                    ),
-                    ((channels - 1) as f64 * RETAINED_PER_CHANNEL * working) as u64,
-                );
-            }
-            // The checkpoints keep every finished geometry stage's parameters and Adam moments
-            // on the host: 3 × 4 bytes for each of a Gaussian's 11 parameters.
-            let finished = match c.method {
-                GaussianMethod::R2gs => channels - 1,
-                GaussianMethod::Stage1 | GaussianMethod::FourDsg => 1,
-            };
-            if finished > 0 {
-                f.add(
-                    format!("{finished} finished stages' state kept for checkpoints"),
-                    bytes(k, 12 * 11 * finished),
-                );
-            }
-            f.add(
-                format!("an iteration's images ({columns} × {rows}×{cols})"),
-                bytes(view_pixels, (PIXEL_BYTES * columns as u64) as usize),
-            );
-            f.add(
-                "evaluation buffers (voxelised volume, 3-D SSIM)",
-                bytes(voxels, VOXEL_BYTES as usize),
-            );
-        }
+        // Below, from the geometry stage's settings.
+        MethodConfig::R2gs(_) | MethodConfig::FourDsg(_) => {}
         MethodConfig::Naf(c) => {
             let h = &c.field.hash_grid;
             let table = h.levels * (1usize << h.log2_table_size.min(40)) * h.features;
@@ -164,6 +111,60 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 bytes(voxels, VOXEL_BYTES as usize),
             );
         }
+    }
+    if let Some(c) = config.geometry() {
+        let k = c
+            .densify
+            .as_ref()
+            .map_or(c.init.n_points, |d| d.max_gaussians.max(c.init.n_points));
+        let columns = match config.method() {
+            Method::FourDsg => channels,
+            _ => 1,
+        };
+        f.add(
+            "the FDK initialisation (volume and its filtered projections)",
+            bytes(voxels, 8).saturating_add(bytes(train * view_pixels, 4)),
+        );
+        f.add(
+            format!(
+                "{k} Gaussians (at the densification cap; {} at the start), with gradients, \
+                 Adam moments and an iteration's transients",
+                c.init.n_points
+            ),
+            bytes(k, (GAUSSIAN_BYTES + 16 * columns as u64) as usize),
+        );
+        if config.method() == Method::R2gs && channels > 1 {
+            let working = bytes(k, GAUSSIAN_BYTES as usize) as f64;
+            f.add(
+                format!(
+                    "pages kept from earlier channels ({} × {:.0} % of the Gaussians' working \
+                     set)",
+                    channels - 1,
+                    100.0 * RETAINED_PER_CHANNEL
+                ),
+                ((channels - 1) as f64 * RETAINED_PER_CHANNEL * working) as u64,
+            );
+        }
+        // The checkpoints keep every finished geometry stage's parameters and Adam moments
+        // on the host: 3 × 4 bytes for each of a Gaussian's 11 parameters.
+        let finished = match config.method() {
+            Method::R2gs => channels - 1,
+            _ => 1,
+        };
+        if finished > 0 {
+            f.add(
+                format!("{finished} finished stages' state kept for checkpoints"),
+                bytes(k, 12 * 11 * finished),
+            );
+        }
+        f.add(
+            format!("an iteration's images ({columns} × {rows}×{cols})"),
+            bytes(view_pixels, (PIXEL_BYTES * columns as u64) as usize),
+        );
+        f.add(
+            "evaluation buffers (voxelised volume, 3-D SSIM)",
+            bytes(voxels, VOXEL_BYTES as usize),
+        );
     }
     f
 }

@@ -5,38 +5,72 @@
 
 use crate::Result;
 use crate::evaluate::Metrics;
+use crate::gaussians::GeometryConfig;
 use crate::gaussians::finish::{Outputs, Trained, finish};
 use crate::gaussians::train::{Checkpoints, Journal};
-use crate::gaussians::{GaussianConfig, GaussianMethod};
-use crate::methods::{fourdsg, r2gs};
+use crate::methods::fourdsg::FourDsgConfig;
+use crate::methods::r2gs::R2gsConfig;
+use crate::methods::{Method, fourdsg, r2gs};
 use crate::record::RunDir;
 use crate::record::fingerprint::Fingerprint;
 use crate::record::log::RunLog;
 use crate::setup::{RunOptions, Setup};
 use prism_domain::scene::Scene;
 
+/// A Gaussian method's configuration.
+#[derive(Clone, Copy)]
+pub(super) enum Gaussian<'a> {
+    R2gs(&'a R2gsConfig),
+    FourDsg(&'a FourDsgConfig),
+}
+
+impl<'a> Gaussian<'a> {
+    fn geometry(self) -> &'a GeometryConfig {
+        match self {
+            Gaussian::R2gs(c) => &c.geometry,
+            Gaussian::FourDsg(c) => &c.geometry,
+        }
+    }
+
+    fn method(self) -> Method {
+        match self {
+            Gaussian::R2gs(_) => Method::R2gs,
+            Gaussian::FourDsg(c) => c.method.into(),
+        }
+    }
+}
+
 /// Run a Gaussian method on `scene` into `dir` (see the module docs).
 pub(super) fn run(
-    config: &GaussianConfig,
+    config: Gaussian,
     scene: &Scene,
     dir: &mut RunDir,
     options: &RunOptions,
 ) -> Result<Option<Metrics>> {
-    config.validate()?;
-    let setup = Setup::new(scene, config.holdout_indices(scene)?, options.observer)?;
+    let held = match config {
+        Gaussian::R2gs(c) => {
+            c.geometry.validate()?;
+            Vec::new()
+        }
+        Gaussian::FourDsg(c) => {
+            c.validate()?;
+            c.holdout_indices(scene)?
+        }
+    };
+    let setup = Setup::new(scene, held, options.observer)?;
     let device = &options.device;
     let checkpoints = checkpoints(config, scene, options)?;
-    let (mut journal, observed, predicted, trained) = match config.method {
-        GaussianMethod::R2gs => {
+    let (mut journal, observed, predicted, trained) = match config {
+        Gaussian::R2gs(c) => {
             let mut journal =
                 Journal::new(RunLog::create(&dir.file(RunDir::LOG))?, options.observer);
             journal.checkpoints = checkpoints;
-            let (observed, models) = r2gs::train(config, &setup, dir, device, &mut journal)?;
+            let (observed, models) = r2gs::train(c, &setup, dir, device, &mut journal)?;
             (journal, observed, None, Trained::PerChannel(models))
         }
-        GaussianMethod::Stage1 | GaussianMethod::FourDsg => {
+        Gaussian::FourDsg(c) => {
             let (mut journal, shared) = fourdsg::run::shared_geometry(
-                config,
+                c,
                 &setup,
                 dir,
                 device,
@@ -45,7 +79,7 @@ pub(super) fn run(
                 checkpoints,
             )?;
             let (observed, predicted, s) = fourdsg::run::spectral(
-                config,
+                c,
                 &setup,
                 shared,
                 dir,
@@ -61,14 +95,24 @@ pub(super) fn run(
         predicted,
         trained,
     };
-    finish(config, &setup, dir, &mut journal, out, options.evaluation)
+    let projection = &config.geometry().projection;
+    let method = config.method().name();
+    finish(
+        method,
+        projection,
+        &setup,
+        dir,
+        &mut journal,
+        out,
+        options.evaluation,
+    )
 }
 
 /// The run's checkpoints, when `options` ask for them: saved with the run's fingerprint (the
 /// scene, the settings, and whether stage 1 came from a stage-1 checkpoint), and read back
 /// when resuming.
 fn checkpoints<'a>(
-    config: &GaussianConfig,
+    config: Gaussian,
     scene: &Scene,
     options: &RunOptions<'a>,
 ) -> Result<Option<Checkpoints<'a>>> {
@@ -76,8 +120,13 @@ fn checkpoints<'a>(
         return Ok(None);
     };
     let from_geometry = serde_json::Value::Bool(options.from_geometry.is_some());
-    let fingerprint = Fingerprint::new(config, scene, &[], &[("from_geometry", from_geometry)])?;
-    let checkpoints = Checkpoints::new(c.file(config.checkpoint_every, fingerprint));
+    let extra = [("from_geometry", from_geometry)];
+    let fingerprint = match config {
+        Gaussian::R2gs(c) => Fingerprint::new(c, scene, &[], &extra)?,
+        Gaussian::FourDsg(c) => Fingerprint::new(c, scene, &[], &extra)?,
+    };
+    let every = config.geometry().checkpoint_every;
+    let checkpoints = Checkpoints::new(c.file(every, fingerprint));
     if c.resume {
         checkpoints.resume_from_file().map(Some)
     } else {

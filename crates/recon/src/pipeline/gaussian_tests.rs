@@ -9,12 +9,11 @@ use crate::gaussians::config::{DensifyConfig, InitConfig};
 use crate::gaussians::host::{self, HostGaussians, ScaleBounds, inverse_softplus};
 use crate::gaussians::io::{ModelInfo, load_model, save_model, write_ply};
 use crate::gaussians::train::densify::densify_and_prune;
-use crate::gaussians::{
-    GaussianConfig, GaussianMethod, GaussianModel, Learnable, ProjectionConfig, World,
-};
+use crate::gaussians::{GaussianModel, GeometryConfig, Learnable, ProjectionConfig, World};
 use crate::init::from_fdk;
-use crate::methods::fourdsg::query;
-use crate::{MethodConfig, Result};
+use crate::methods::fourdsg::{FourDsgConfig, FourDsgMethod, query};
+use crate::methods::r2gs::R2gsConfig;
+use crate::{Method, MethodConfig, Result};
 use burn::tensor::Device;
 use prism_domain::observe::Silent;
 use prism_domain::scene::Scene;
@@ -24,8 +23,8 @@ use std::path::Path;
 
 /// Run `cfg` on `scene` into `out` on `device`, continuing from the stage-1 checkpoint `from`;
 /// the scores.
-fn run_from(
-    cfg: &GaussianConfig,
+fn run_from<C: Clone + Into<MethodConfig>>(
+    cfg: &C,
     scene: &Scene,
     out: &Path,
     device: &Device,
@@ -38,29 +37,52 @@ fn run_from(
         evaluation: &Evaluation::default(),
         checkpoint: None,
     };
-    let config = MethodConfig::Gaussian(Box::new(cfg.clone()));
+    let config: MethodConfig = cfg.clone().into();
     let outcome = run(&config, scene, RunDir::create(out, false)?, &options)?;
     Ok(outcome.metrics.expect("the test scenes have references"))
 }
 
-fn run_on(cfg: &GaussianConfig, scene: &Scene, out: &Path, device: &Device) -> Result<Metrics> {
+fn run_on<C: Clone + Into<MethodConfig>>(
+    cfg: &C,
+    scene: &Scene,
+    out: &Path,
+    device: &Device,
+) -> Result<Metrics> {
     run_from(cfg, scene, out, device, None)
 }
 
-pub(crate) fn tiny(method: GaussianMethod) -> GaussianConfig {
-    let mut c = GaussianConfig::new(method);
-    c.iterations = 40;
-    c.density_iterations = 20;
-    c.init.n_points = 500;
-    c.eval_every = 20;
-    c.densify = Some(DensifyConfig {
-        from: 10,
-        until: 30,
-        every: 20,
-        grad_threshold: 1e-5,
-        ..DensifyConfig::default()
-    });
+/// The geometry stage of the tiny runs: 40 iterations from 500 Gaussians, densifying at 20.
+pub(crate) fn tiny_geometry() -> GeometryConfig {
+    GeometryConfig {
+        iterations: 40,
+        init: InitConfig {
+            n_points: 500,
+            ..InitConfig::default()
+        },
+        eval_every: 20,
+        densify: Some(DensifyConfig {
+            from: 10,
+            until: 30,
+            every: 20,
+            grad_threshold: 1e-5,
+            ..DensifyConfig::default()
+        }),
+        ..GeometryConfig::default()
+    }
+}
+
+/// A tiny 4D-SG run (stage-1 densities: 20 iterations).
+pub(crate) fn tiny(method: FourDsgMethod) -> FourDsgConfig {
+    let mut c = FourDsgConfig::new(method);
+    c.geometry = tiny_geometry();
+    c.spectral.density_iterations = 20;
     c
+}
+
+pub(crate) fn tiny_r2gs() -> R2gsConfig {
+    R2gsConfig {
+        geometry: tiny_geometry(),
+    }
 }
 
 pub(super) fn losses(dir: &std::path::Path) -> Vec<(String, usize, f64, usize)> {
@@ -83,8 +105,11 @@ pub(super) fn losses(dir: &std::path::Path) -> Vec<(String, usize, f64, usize)> 
 fn both_methods_train_densify_score_and_repeat_exactly() {
     let scene = scene();
     let dev = cpu_device();
-    for method in [GaussianMethod::R2gs, GaussianMethod::Stage1] {
-        let cfg = tiny(method);
+    for method in [Method::R2gs, Method::FourDsgStage1] {
+        let cfg: MethodConfig = match method {
+            Method::R2gs => tiny_r2gs().into(),
+            _ => tiny(FourDsgMethod::Stage1).into(),
+        };
         let a = tempfile::tempdir().unwrap();
         let b = tempfile::tempdir().unwrap();
         let report = run_on(&cfg, &scene, a.path(), &dev).unwrap();
@@ -94,8 +119,8 @@ fn both_methods_train_densify_score_and_repeat_exactly() {
         // Records at iterations 20 and 40 of every geometry stage (one per channel for r2gs),
         // and at 20 of stage 1's density stage.
         let records = match method {
-            GaussianMethod::R2gs => 4,
-            GaussianMethod::Stage1 | GaussianMethod::FourDsg => 3,
+            Method::R2gs => 4,
+            _ => 3,
         };
         assert_eq!(la.len(), records, "{la:?}");
         let first = &la[0];
@@ -312,14 +337,14 @@ fn four_dsg_trains_the_curve_model_and_predicts_a_held_out_channel() {
         prism_gscnet::CurveModelKind::Gscnet,
         prism_gscnet::CurveModelKind::Mlp,
     ] {
-        let mut cfg = tiny(GaussianMethod::FourDsg);
-        cfg.iterations = 20;
-        cfg.densify = None;
-        cfg.stage2.iterations = 20;
-        cfg.stage2.curve_model.kind = kind;
-        cfg.stage2.curve_model.width = 8;
-        cfg.stage2.curve_model.depth = 1;
-        cfg.holdout_channels = vec![scene.channels[1].label.clone()];
+        let mut cfg = tiny(FourDsgMethod::Full);
+        cfg.geometry.iterations = 20;
+        cfg.geometry.densify = None;
+        cfg.spectral.stage2.iterations = 20;
+        cfg.spectral.stage2.curve_model.kind = kind;
+        cfg.spectral.stage2.curve_model.width = 8;
+        cfg.spectral.stage2.curve_model.depth = 1;
+        cfg.spectral.holdout_channels = vec![scene.channels[1].label.clone()];
         let dir = tempfile::tempdir().unwrap();
         let report = run_on(&cfg, &scene, dir.path(), &dev).unwrap();
         assert_eq!(
@@ -367,19 +392,24 @@ fn four_dsg_trains_the_curve_model_and_predicts_a_held_out_channel() {
 #[test]
 fn bad_holdouts_and_single_channel_scenes_are_handled() {
     let scene = three_channel_scene();
-    let mut cfg = tiny(GaussianMethod::FourDsg);
-    cfg.holdout_channels = vec![scene.channels[0].label.clone()];
+    let mut cfg = tiny(FourDsgMethod::Full);
+    cfg.spectral.holdout_channels = vec![scene.channels[0].label.clone()];
     let e = cfg.holdout_indices(&scene).unwrap_err().to_string();
     assert!(
         e.contains("holdout_channels[0]") && e.contains("extrapolation"),
         "{e}"
     );
-    cfg.holdout_channels = vec!["nope".into()];
+    cfg.spectral.holdout_channels = vec!["nope".into()];
     let e = cfg.holdout_indices(&scene).unwrap_err().to_string();
     assert!(e.contains("nope"), "{e}");
-    let mut r2 = tiny(GaussianMethod::R2gs);
-    r2.holdout_channels = vec![scene.channels[1].label.clone()];
-    assert!(r2.holdout_indices(&scene).is_err());
+    // R²-Gaussian cannot predict an unobserved channel: it has no such setting.
+    let e = MethodConfig::from_yaml("method: r2gs\nholdout_channels: [b]\n", Path::new("r.yaml"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("r.yaml") && e.contains("holdout_channels") && e.contains("`r2gs`"),
+        "{e}"
+    );
 }
 
 /// The tiny scene with a third channel at 55 keV between 40 and 70 keV, every view complete.
@@ -430,12 +460,12 @@ pub(super) fn three_channel_scene() -> prism_domain::scene::Scene {
 #[test]
 fn stage_two_runs_on_the_ndarray_backend() {
     let scene = three_channel_scene();
-    let mut cfg = tiny(GaussianMethod::FourDsg);
-    cfg.iterations = 8;
-    cfg.densify = None;
-    cfg.stage2.iterations = 6;
-    cfg.stage2.curve_model.width = 8;
-    cfg.stage2.curve_model.depth = 1;
+    let mut cfg = tiny(FourDsgMethod::Full);
+    cfg.geometry.iterations = 8;
+    cfg.geometry.densify = None;
+    cfg.spectral.stage2.iterations = 6;
+    cfg.spectral.stage2.curve_model.width = 8;
+    cfg.spectral.stage2.curve_model.depth = 1;
     let dir = tempfile::tempdir().unwrap();
     #[allow(deprecated)] // burn-ndarray goes in Burn 0.23; until then our ops serve it too
     let dev = burn::tensor::Device::ndarray();
@@ -454,11 +484,11 @@ fn stage_two_runs_on_the_ndarray_backend() {
 fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
     let scene = three_channel_scene();
     let dev = cpu_device();
-    let mut cfg = tiny(GaussianMethod::FourDsg);
-    cfg.iterations = 30;
-    cfg.stage2.iterations = 10;
-    cfg.stage2.curve_model.width = 8;
-    cfg.stage2.curve_model.depth = 1;
+    let mut cfg = tiny(FourDsgMethod::Full);
+    cfg.geometry.iterations = 30;
+    cfg.spectral.stage2.iterations = 10;
+    cfg.spectral.stage2.curve_model.width = 8;
+    cfg.spectral.stage2.curve_model.depth = 1;
     let a = tempfile::tempdir().unwrap();
     run_on(&cfg, &scene, a.path(), &dev).unwrap();
     let ckpt = a.path().join(RunDir::GEOMETRY);
@@ -490,11 +520,11 @@ fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
 
     // Spectral-stage settings may change; stage-1 settings and the scene may not.
     let mut other_stage2 = cfg.clone();
-    other_stage2.stage2.iterations = 2;
+    other_stage2.spectral.stage2.iterations = 2;
     let c = tempfile::tempdir().unwrap();
     run_from(&other_stage2, &scene, c.path(), &dev, Some(&ckpt)).unwrap();
     let mut other_init = cfg.clone();
-    other_init.init.n_points = 400;
+    other_init.geometry.init.n_points = 400;
     let d = tempfile::tempdir().unwrap();
     let refused = d.path().join("refused");
     let e = run_from(&other_init, &scene, &refused, &dev, Some(a.path()))
@@ -526,16 +556,10 @@ fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
         e.contains("gaussians.safetensors") && e.contains("prism-geometry/1"),
         "{e}"
     );
-    let e = run_from(
-        &tiny(GaussianMethod::R2gs),
-        &scene,
-        &refused,
-        &dev,
-        Some(a.path()),
-    )
-    .err()
-    .unwrap()
-    .to_string();
+    let e = run_from(&tiny_r2gs(), &scene, &refused, &dev, Some(a.path()))
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("r2gs"), "{e}");
 }
 
@@ -546,12 +570,12 @@ fn the_projection_mode_reaches_training_and_queries() {
     use prism_render::ProjectionMode;
     let scene = scene();
     let dev = cpu_device();
-    let mut cfg = tiny(GaussianMethod::Stage1);
-    cfg.iterations = 30;
-    cfg.density_iterations = 10;
+    let mut cfg = tiny(FourDsgMethod::Stage1);
+    cfg.geometry.iterations = 30;
+    cfg.spectral.density_iterations = 10;
     let affine_dir = tempfile::tempdir().unwrap();
     run_on(&cfg, &scene, affine_dir.path(), &dev).unwrap();
-    cfg.projection = ProjectionConfig {
+    cfg.geometry.projection = ProjectionConfig {
         mode: ProjectionMode::Exact,
         cutoff: 3.0,
     };
@@ -570,7 +594,7 @@ fn the_projection_mode_reaches_training_and_queries() {
 
     // The model file keeps the mode, and queries render with it.
     let q = Query::open(&RunDir::spectral_model(dir.path()).unwrap(), &dev).unwrap();
-    assert_eq!(q.loaded.info.projection, cfg.projection);
+    assert_eq!(q.loaded.info.projection, cfg.geometry.projection);
     let queried = q.projections(QueryAt::Tau(0.0), false).unwrap();
     let l = &q.loaded;
     let views: Vec<usize> = (0..l.info.geometry.views()).collect();
@@ -578,7 +602,7 @@ fn the_projection_mode_reaches_training_and_queries() {
         let raw = l.model.densities.value.clone().narrow(1, 0, 1);
         render_views(&l.model, raw, &l.world, &l.info.geometry, &views, options).unwrap()
     };
-    assert_eq!(queried, render(&cfg.projection.options()));
+    assert_eq!(queried, render(&cfg.geometry.projection.options()));
     // The cone-beam affine splat differs from the exact integral (here by ~1e-3 in line integral).
     let affine = render(&prism_render::ProjectOptions::default());
     let gap = queried
@@ -594,10 +618,10 @@ fn the_projection_mode_reaches_training_and_queries() {
 #[test]
 fn a_4dsg_run_on_wgpu_follows_the_cpu_run() {
     let scene = three_channel_scene();
-    let mut cfg = tiny(GaussianMethod::FourDsg);
-    cfg.stage2.iterations = 20;
-    cfg.stage2.curve_model.width = 8;
-    cfg.stage2.curve_model.depth = 1;
+    let mut cfg = tiny(FourDsgMethod::Full);
+    cfg.spectral.stage2.iterations = 20;
+    cfg.spectral.stage2.curve_model.width = 8;
+    cfg.spectral.stage2.curve_model.depth = 1;
     let run_with = |device: &burn::tensor::Device| {
         let dir = tempfile::tempdir().unwrap();
         let report = run_on(&cfg, &scene, dir.path(), device).unwrap();

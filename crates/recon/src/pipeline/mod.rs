@@ -7,6 +7,8 @@ mod gaussian;
 
 pub use footprint::footprint;
 
+use gaussian::Gaussian;
+
 use crate::evaluate::Metrics;
 use crate::methods::{classic, naf};
 use crate::record::RunDir;
@@ -26,8 +28,9 @@ pub fn run(
     dir.write_text(RunDir::CONFIG, &config.resolved_yaml()?)?;
     let metrics = match config {
         MethodConfig::Classic(c) => classic::run::run(c, scene, &mut dir, options)?,
-        MethodConfig::Gaussian(c) => gaussian::run(c, scene, &mut dir, options)?,
         MethodConfig::Naf(c) => naf::run::run(c, scene, &mut dir, options)?,
+        MethodConfig::R2gs(c) => gaussian::run(Gaussian::R2gs(c), scene, &mut dir, options)?,
+        MethodConfig::FourDsg(c) => gaussian::run(Gaussian::FourDsg(c), scene, &mut dir, options)?,
     };
     if let Some(m) = &metrics {
         dir.write_json(RunDir::METRICS, m)?;

@@ -2,11 +2,11 @@
 //! uninterrupted ones (`crate::gaussians::train::checkpoints`, `crate::methods::naf::resume`); divergence saves the last
 //! good state; mismatched resumes are refused.
 
-use super::gaussian_tests::{losses, three_channel_scene, tiny};
+use super::gaussian_tests::{losses, three_channel_scene, tiny, tiny_r2gs};
 use super::run;
 use super::tests::scene;
 use crate::device::cpu_device;
-use crate::gaussians::{GaussianConfig, GaussianMethod};
+use crate::methods::fourdsg::FourDsgMethod;
 use crate::record::RunDir;
 use crate::setup::{Checkpointing, RunOptions};
 use crate::{Error, MethodConfig, Result};
@@ -37,15 +37,15 @@ impl Observer for StopAt<'_> {
 
 /// Run `cfg` into `out`, checkpointing to `ckpt` (resuming from it when `resume`), stopped at
 /// step `at` of phase `phase` (none when `phase` is empty).
-fn run_stopped(
-    cfg: &GaussianConfig,
+fn run_stopped<C: Clone + Into<MethodConfig>>(
+    cfg: &C,
     scene: &Scene,
     out: &Path,
     ckpt: &Path,
     resume: bool,
     stop: (&str, u64),
 ) -> Result<()> {
-    let config = MethodConfig::Gaussian(Box::new(cfg.clone()));
+    let config: MethodConfig = cfg.clone().into();
     run_method_stopped(&config, scene, out, ckpt, resume, stop)
 }
 
@@ -134,7 +134,7 @@ fn interrupted(e: Error, ckpt: &Path, stage: &str, iter: usize) {
 #[test]
 fn an_interrupted_r2gs_run_resumes_exactly() {
     let scene = scene();
-    let cfg = tiny(GaussianMethod::R2gs);
+    let cfg = tiny_r2gs();
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
     let ckpt = tmp.path().join("b.resume.safetensors");
@@ -158,11 +158,11 @@ fn an_interrupted_r2gs_run_resumes_exactly() {
 #[test]
 fn a_4dsg_run_interrupted_in_both_stages_resumes_exactly() {
     let scene = three_channel_scene();
-    let mut cfg = tiny(GaussianMethod::FourDsg);
-    cfg.iterations = 30;
-    cfg.stage2.iterations = 12;
-    cfg.stage2.curve_model.width = 8;
-    cfg.stage2.curve_model.depth = 1;
+    let mut cfg = tiny(FourDsgMethod::Full);
+    cfg.geometry.iterations = 30;
+    cfg.spectral.stage2.iterations = 12;
+    cfg.spectral.stage2.curve_model.width = 8;
+    cfg.spectral.stage2.curve_model.depth = 1;
     let tmp = tempfile::tempdir().unwrap();
     let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
     let ckpt = tmp.path().join("b.ckpt");
@@ -181,8 +181,8 @@ fn a_4dsg_run_interrupted_in_both_stages_resumes_exactly() {
 #[test]
 fn checkpoints_are_periodic_and_refused_for_another_run() {
     let scene = scene();
-    let mut cfg = tiny(GaussianMethod::R2gs);
-    cfg.checkpoint_every = 10;
+    let mut cfg = tiny_r2gs();
+    cfg.geometry.checkpoint_every = 10;
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("run");
     let ckpt = tmp.path().join("run.ckpt");
@@ -191,14 +191,14 @@ fn checkpoints_are_periodic_and_refused_for_another_run() {
     interrupted(e.unwrap_err(), &ckpt, "r2gs 40keV", 35);
 
     let mut other = cfg.clone();
-    other.seed = 3;
+    other.geometry.seed = 3;
     let e = run_stopped(&other, &scene, &out, &ckpt, true, ("", 0))
         .unwrap_err()
         .to_string();
     assert!(e.contains("run.ckpt") && e.contains("`seed`"), "{e}");
     // `checkpoint_every` may change between the runs.
     let mut every = cfg.clone();
-    every.checkpoint_every = 0;
+    every.geometry.checkpoint_every = 0;
     let mut other_scene = scene.clone();
     other_scene.projections[[0, 0, 20, 20]] += 0.01;
     let e = run_stopped(&every, &other_scene, &out, &ckpt, true, ("", 0))
@@ -218,10 +218,10 @@ fn checkpoints_are_periodic_and_refused_for_another_run() {
 #[test]
 fn a_diverging_run_saves_its_last_good_state() {
     let scene = scene();
-    let mut cfg = tiny(GaussianMethod::R2gs);
-    cfg.densify = None;
-    cfg.lr.density.init = 1e38;
-    cfg.lr.density.end = 1e38;
+    let mut cfg = tiny_r2gs();
+    cfg.geometry.densify = None;
+    cfg.geometry.lr.density.init = 1e38;
+    cfg.geometry.lr.density.end = 1e38;
     let tmp = tempfile::tempdir().unwrap();
     let ckpt = tmp.path().join("run.ckpt");
     let e = run_stopped(&cfg, &scene, &tmp.path().join("run"), &ckpt, false, ("", 0)).unwrap_err();

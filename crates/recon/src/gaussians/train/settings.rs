@@ -2,7 +2,9 @@
 //! loss weights, densification, evaluation and seed.
 
 use crate::Result;
-use crate::gaussians::config::{DensifyConfig, GaussianConfig, LearningRates, LossConfig};
+use crate::gaussians::config::{
+    DensifyConfig, GeometryConfig, LearningRates, LossConfig, Stage2Config,
+};
 use crate::gaussians::spectral::BasisHead;
 use crate::gaussians::{Learnable, World};
 use prism_domain::geometry::VolumeGrid;
@@ -64,7 +66,7 @@ impl<'a> Stage<'a> {
     /// A geometry stage of `config` (all groups learnable, the config's schedule and
     /// densification) named `name`, fitting `channel`, on `grid` (millimetres) in `world`.
     pub fn geometry(
-        config: &'a GaussianConfig,
+        config: &'a GeometryConfig,
         name: &'a str,
         channel: &'a str,
         grid: &'a VolumeGrid,
@@ -87,17 +89,18 @@ impl<'a> Stage<'a> {
         }
     }
 
-    /// 4D-SG's spectral stage (stage 2) of `config` named `name`: `stage2`'s iterations and
-    /// freezing, no densification, its own seed, every channel fitted.
+    /// 4D-SG's spectral stage (stage 2) of the geometry stage `config` named `name`:
+    /// `stage2`'s iterations and freezing, no densification, its own seed, every channel fitted.
     pub fn spectral(
-        config: &'a GaussianConfig,
+        config: &'a GeometryConfig,
+        stage2: &Stage2Config,
         name: &'a str,
         grid: &'a VolumeGrid,
         world: &'a World,
     ) -> Stage<'a> {
         Stage {
-            iterations: config.stage2.iterations,
-            learn: config.stage2.freeze.learnable(),
+            iterations: stage2.iterations,
+            learn: stage2.freeze.learnable(),
             densify: None,
             seed: config.seed.wrapping_add(1),
             ..Stage::geometry(config, name, "all", grid, world)

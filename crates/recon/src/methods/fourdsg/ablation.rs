@@ -9,15 +9,15 @@
 //! Variants differ only in `stage2` (and the same seed), so differences are the ablated
 //! choice's alone.
 
+use super::config::{FourDsgConfig, FourDsgMethod};
 use super::run::{shared_geometry, spectral};
 use crate::evaluate::Metrics;
 use crate::gaussians::config::Freeze;
 use crate::gaussians::finish::{Outputs, finish};
 use crate::gaussians::train::Journal;
-use crate::gaussians::{GaussianConfig, GaussianMethod};
 use crate::record::RunDir;
 use crate::setup::{RunOptions, Setup};
-use crate::{Error, MethodConfig, Result};
+use crate::{Error, Result};
 use prism_domain::observe::Level;
 use prism_domain::scene::Scene;
 use prism_gscnet::CurveModelKind;
@@ -39,7 +39,7 @@ pub enum Study {
 #[derive(Clone, Debug)]
 pub struct Variant {
     pub name: String,
-    pub config: GaussianConfig,
+    pub config: FourDsgConfig,
 }
 
 impl Study {
@@ -55,7 +55,7 @@ impl Study {
     /// Freeze: the paper's FFFL (geometry fixed, density learnable), all learnable (our default),
     /// all frozen (only the network learns), each geometric group alone learnable, and the
     /// geometry learnable with the density frozen.
-    pub fn variants(self, base: &GaussianConfig) -> Vec<Variant> {
+    pub fn variants(self, base: &FourDsgConfig) -> Vec<Variant> {
         match self {
             Study::Freeze => {
                 let p = Freeze::PAPER;
@@ -72,14 +72,14 @@ impl Study {
                     .iter()
                     .map(|&(position, rotation, scale, density)| {
                         let mut config = base.clone();
-                        config.stage2.freeze = Freeze {
+                        config.spectral.stage2.freeze = Freeze {
                             position,
                             rotation,
                             scale,
                             density,
                         };
                         Variant {
-                            name: format!("PRSD-{}", config.stage2.freeze.code()),
+                            name: format!("PRSD-{}", config.spectral.stage2.freeze.code()),
                             config,
                         }
                     })
@@ -89,7 +89,7 @@ impl Study {
                 .iter()
                 .map(|&kind| {
                     let mut config = base.clone();
-                    config.stage2.curve_model.kind = kind;
+                    config.spectral.stage2.curve_model.kind = kind;
                     Variant {
                         name: kind.name().to_string(),
                         config,
@@ -131,13 +131,13 @@ pub struct AblationReport {
 /// once into `geometry/` (or continued from `options.from_geometry`), then one complete run
 /// directory per variant, `ablation.json` and `ablation.md`.
 pub fn ablate(
-    base: &GaussianConfig,
+    base: &FourDsgConfig,
     study: Study,
     scene: &Scene,
     mut dir: RunDir,
     options: &RunOptions,
 ) -> Result<(PathBuf, AblationReport)> {
-    if base.method != GaussianMethod::FourDsg {
+    if base.method != FourDsgMethod::Full {
         return Err(Error::invalid(
             "method",
             format!(
@@ -157,7 +157,9 @@ pub fn ablate(
     }
     // Stage 1 once (or from a checkpoint); its checkpoint goes to `geometry/`.
     let mut geometry = dir.child("geometry")?;
-    let resolved = |c: &GaussianConfig| MethodConfig::Gaussian(Box::new(c.clone())).resolved_yaml();
+    let resolved = |c: &FourDsgConfig| {
+        serde_yaml_ng::to_string(c).map_err(|e| Error::invalid("config", e.to_string()))
+    };
     geometry.write_text(RunDir::CONFIG, &resolved(base)?)?;
     let (mut root, shared) = shared_geometry(
         base,
@@ -197,7 +199,8 @@ pub fn ablate(
             trained: s.trained(),
         };
         let metrics = finish(
-            &v.config,
+            v.config.method.name(),
+            &v.config.geometry.projection,
             &setup,
             &mut vdir,
             &mut journal,
@@ -224,8 +227,8 @@ pub fn ablate(
 fn row(v: &Variant, report: Option<&Metrics>, stage2_s: f64, train_s: f64) -> AblationRow {
     AblationRow {
         variant: v.name.clone(),
-        freeze: v.config.stage2.freeze.code(),
-        curve_model: v.config.stage2.curve_model.kind.name().to_string(),
+        freeze: v.config.spectral.stage2.freeze.code(),
+        curve_model: v.config.spectral.stage2.curve_model.kind.name().to_string(),
         psnr: report.map(|r| r.mean.psnr),
         ssim: report.map(|r| r.mean.ssim),
         channel_psnr: report

@@ -2,6 +2,7 @@
 //! checkpointed, or continued from a checkpoint) and the spectral stage on it (the model saved,
 //! held-out channels predicted and scored).
 
+use super::config::FourDsgConfig;
 use super::query::basis::save_basis;
 use super::query::{BASIS_FILE, Holdout, predict_holdout};
 use super::stage1::checkpoint::{self, Checkpoint};
@@ -10,7 +11,6 @@ use super::stage2::{Spectral, train_spectral};
 use crate::Result;
 use crate::device::host_values;
 use crate::evaluate::Evaluation;
-use crate::gaussians::GaussianConfig;
 use crate::gaussians::io::{ModelInfo, save_model, write_ply};
 use crate::gaussians::train::{Checkpoints, Journal};
 use crate::gaussians::volume::volumes_with;
@@ -26,7 +26,7 @@ use std::path::Path;
 /// `from_geometry` (a file, or a run directory holding one) of the same scene and stage-1
 /// settings; with the journal the run goes on with (keeping `checkpoints`).
 pub(crate) fn shared_geometry<'o>(
-    config: &GaussianConfig,
+    config: &FourDsgConfig,
     setup: &Setup,
     dir: &mut RunDir,
     device: &Device,
@@ -61,7 +61,7 @@ pub(crate) fn shared_geometry<'o>(
 /// The spectral stage on the shared geometry; saves the model and returns the observed
 /// channels' volumes and, for held-out channels, the predicted ones.
 pub(crate) fn spectral(
-    config: &GaussianConfig,
+    config: &FourDsgConfig,
     setup: &Setup,
     shared: SharedGeometry,
     dir: &mut RunDir,
@@ -76,7 +76,7 @@ pub(crate) fn spectral(
         setup.full,
         scene,
         &(0..m).collect::<Vec<_>>(),
-        config.projection,
+        config.geometry.projection,
     );
     let raw_host = host_values(&s.raw);
     save_model(

@@ -1,9 +1,13 @@
 //! R²-Gaussian (`method: r2gs`): every observed channel reconstructed independently by its own
 //! set of 3D Gaussians, initialised from the channel's FDK ([`crate::init`]) and trained by the
-//! shared Gaussian loop ([`crate::gaussians::train`]). Its configuration is the Gaussian
-//! methods' [`GaussianConfig`] (the geometry-stage sections); checkpoints are the shared
+//! shared Gaussian loop ([`crate::gaussians::train`]). Its configuration ([`config`]) is the
+//! geometry stage's alone; checkpoints are the shared
 //! [`crate::gaussians::train::Checkpoints`]; the run around it is [`crate::pipeline`]'s, and it ends
 //! as every Gaussian run does ([`crate::gaussians::finish`]: volumes, `train.json`, scores).
+
+pub mod config;
+
+pub use config::R2gsConfig;
 
 use crate::Result;
 use crate::gaussians::io::{ModelInfo, save_model, write_ply};
@@ -11,7 +15,7 @@ use crate::gaussians::train::Evaluator;
 use crate::gaussians::train::data::image;
 use crate::gaussians::train::{Journal, Stage, Supervision};
 use crate::gaussians::volume::volumes;
-use crate::gaussians::{GaussianConfig, GaussianModel, World};
+use crate::gaussians::{GaussianModel, World};
 use crate::init::initial_model;
 use crate::record::RunDir;
 use crate::setup::{Setup, Volumes};
@@ -21,12 +25,13 @@ use ndarray::Axis;
 /// R²-Gaussian: every observed channel trained independently; its model saved as
 /// `gaussians-<label>`.
 pub(crate) fn train(
-    config: &GaussianConfig,
+    config: &R2gsConfig,
     setup: &Setup,
     dir: &mut RunDir,
     device: &Device,
     journal: &mut Journal,
 ) -> Result<(Volumes, Vec<(GaussianModel, World)>)> {
+    let config = &config.geometry;
     let scene = &*setup.observed;
     let geometry = &scene.geometry;
     let mut out = Vec::new();

@@ -17,11 +17,12 @@
 //! log so far) and `fingerprint` (the scene and the stage-1 settings; resuming with a different
 //! scene or different stage-1 settings is refused, naming what differs).
 
+use super::super::config::FourDsgConfig;
 use super::SharedGeometry;
+use crate::gaussians::World;
 use crate::gaussians::host::ScaleBounds;
 use crate::gaussians::state::{ModelMeta, ModelState};
 use crate::gaussians::train::StageReport;
-use crate::gaussians::{GaussianConfig, World};
 pub use crate::record::fingerprint::Fingerprint;
 use crate::record::log::SavedLog;
 use crate::record::tensors::{TensorFile, Tensors, json_meta};
@@ -37,7 +38,7 @@ const FORMAT: &str = "prism-geometry/1";
 
 /// What a stage-1 result depends on: the scene and the config without the settings stage 1
 /// does not read (`method`, `stage2`, `density_iterations`, `eval_every`).
-pub fn fingerprint(config: &GaussianConfig, scene: &Scene) -> Result<Fingerprint> {
+pub fn fingerprint(config: &FourDsgConfig, scene: &Scene) -> Result<Fingerprint> {
     Fingerprint::new(
         config,
         scene,
@@ -130,19 +131,19 @@ pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkp
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gaussians::{GaussianMethod, ProjectionConfig};
+    use crate::gaussians::ProjectionConfig;
     use prism_render::ProjectionMode;
 
     #[test]
     fn settings_a_checkpoint_predates_count_as_their_defaults() {
         let scene = crate::pipeline::tests::scene();
-        let config = GaussianConfig::new(GaussianMethod::FourDsg);
+        let config = FourDsgConfig::default();
         let mut old = fingerprint(&config, &scene).unwrap();
         // A checkpoint written before `projection` existed.
         old.settings.as_object_mut().unwrap().remove("projection");
         assert_eq!(old.mismatch(&fingerprint(&config, &scene).unwrap()), None);
         let mut exact = config.clone();
-        exact.projection = ProjectionConfig {
+        exact.geometry.projection = ProjectionConfig {
             mode: ProjectionMode::Exact,
             ..ProjectionConfig::default()
         };
@@ -153,7 +154,7 @@ mod tests {
         );
         // Other settings still count.
         let mut seeded = config;
-        seeded.seed = 7;
+        seeded.geometry.seed = 7;
         let why = old
             .mismatch(&fingerprint(&seeded, &scene).unwrap())
             .unwrap();

@@ -11,14 +11,14 @@
 
 pub mod checkpoint;
 
+use super::config::{FourDsgConfig, StructuralSource};
 use crate::device::upload;
-use crate::gaussians::config::StructuralSource;
 use crate::gaussians::spectral::BasisHead;
 use crate::gaussians::spectral::gains::channel_ratios;
 use crate::gaussians::train::Evaluator;
 use crate::gaussians::train::data::{Measured, image};
 use crate::gaussians::train::{ChannelMap, Journal, Stage, Supervision};
-use crate::gaussians::{GaussianConfig, GaussianModel, World};
+use crate::gaussians::{GaussianModel, World};
 use crate::init::initial_model;
 use crate::{Error, Result};
 use burn::tensor::Device;
@@ -69,8 +69,8 @@ pub fn resolve(source: StructuralSource, scene: &Scene) -> StructuralSource {
 }
 
 /// Stage 1's targets in `scene` (see [`Targets`]).
-pub fn targets(config: &GaussianConfig, scene: &Scene) -> Result<Targets> {
-    let source = resolve(config.structural, scene);
+pub fn targets(config: &FourDsgConfig, scene: &Scene) -> Result<Targets> {
+    let source = resolve(config.spectral.structural, scene);
     let m = scene.n_channels();
     let single = |views: Vec<usize>, images: Vec<Vec<f32>>| Targets {
         source,
@@ -187,7 +187,7 @@ impl Targets {
 /// Train the shared geometry and common density of `scene` (its observed channels) on stage 1's
 /// [`targets`], initialised from the FDK of their start images.
 pub fn train_shared_geometry(
-    config: &GaussianConfig,
+    config: &FourDsgConfig,
     scene: &Scene,
     device: &Device,
     journal: &mut Journal,
@@ -195,7 +195,8 @@ pub fn train_shared_geometry(
     let geometry = &scene.geometry;
     let t = targets(config, scene)?;
     let stack = t.start_stack(geometry);
-    let (mut model, world) = initial_model(config, geometry, stack.view(), &t.views, device)?;
+    let (mut model, world) =
+        initial_model(&config.geometry, geometry, stack.view(), &t.views, device)?;
     let sup = Supervision::new(
         geometry, &world, &t.views, t.images, t.columns, t.total, device,
     );
@@ -209,7 +210,7 @@ pub fn train_shared_geometry(
             );
         }
         let h = BasisHead::new(
-            &config.joint.basis(),
+            &config.spectral.joint.basis(),
             "joint",
             &specs,
             &world,
@@ -236,7 +237,13 @@ pub fn train_shared_geometry(
     };
     let stage = Stage {
         map,
-        ..Stage::geometry(config, "geometry", channel, &geometry.volume, &world)
+        ..Stage::geometry(
+            &config.geometry,
+            "geometry",
+            channel,
+            &geometry.volume,
+            &world,
+        )
     };
     journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
     if let Some(h) = &head {

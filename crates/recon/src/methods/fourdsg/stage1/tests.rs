@@ -3,8 +3,8 @@
 use super::*;
 use crate::device::upload;
 use crate::device::{cpu_device, host_values};
-use crate::gaussians::GaussianMethod;
 use crate::gaussians::spectral::gains::channel_ratios;
+use crate::methods::fourdsg::FourDsgMethod;
 use crate::pipeline::gaussian_tests::tiny;
 use crate::pipeline::tests::{run_into, scene};
 use crate::record::RunDir;
@@ -70,14 +70,14 @@ fn auto_takes_the_mean_when_every_view_has_every_channel_and_joint_otherwise() {
 fn the_joint_loss_is_the_sum_of_the_per_channel_losses_where_they_exist() {
     let sc = interleaved();
     let dev = cpu_device();
-    let mut cfg = tiny(GaussianMethod::FourDsg);
-    cfg.structural = StructuralSource::Joint;
+    let mut cfg = tiny(FourDsgMethod::Full);
+    cfg.spectral.structural = StructuralSource::Joint;
     let t = targets(&cfg, &sc).unwrap();
     assert_eq!(t.views, (0..24).collect::<Vec<_>>());
     assert_eq!(t.total, 2);
     let stack = t.start_stack(&sc.geometry);
     let (mut model, world) =
-        initial_model(&cfg, &sc.geometry, stack.view(), &t.views, &dev).unwrap();
+        initial_model(&cfg.geometry, &sc.geometry, stack.view(), &t.views, &dev).unwrap();
     let sup = Supervision::new(
         &sc.geometry,
         &world,
@@ -88,14 +88,14 @@ fn the_joint_loss_is_the_sum_of_the_per_channel_losses_where_they_exist() {
         &dev,
     );
     let specs = [40.0, 70.0].map(|kev| ChannelSpec::Mono { kev });
-    let head = BasisHead::new(&cfg.joint.basis(), "joint", &specs, &world, &dev).unwrap();
+    let head = BasisHead::new(&cfg.spectral.joint.basis(), "joint", &specs, &world, &dev).unwrap();
     model.set_densities(upload(
         head.initial_raw(&model.to_host().densities),
         2,
         &dev,
     ));
     let channel_raw = head.channel_raw(&model);
-    let options = cfg.projection.options();
+    let options = cfg.geometry.projection.options();
     let f = world.projection_factor() as f32;
     let render = |m: &crate::gaussians::GaussianModel, camera| {
         project(&m.activate(None).gaussians, &[camera], None, &options).unwrap()
@@ -134,10 +134,10 @@ fn the_joint_loss_is_the_sum_of_the_per_channel_losses_where_they_exist() {
 #[test]
 fn an_interleaved_scene_trains_both_stages_with_no_structural_projection() {
     let sc = interleaved();
-    let mut cfg = tiny(GaussianMethod::FourDsg);
-    cfg.stage2.iterations = 20;
+    let mut cfg = tiny(FourDsgMethod::Full);
+    cfg.spectral.stage2.iterations = 20;
     let dir = tempfile::tempdir().unwrap();
-    let config = MethodConfig::Gaussian(Box::new(cfg.clone()));
+    let config = MethodConfig::from(cfg.clone());
     let outcome = run_into(&config, &sc, dir.path(), false).unwrap();
     let metrics = outcome.metrics.unwrap();
     for ch in &metrics.channels {
@@ -155,8 +155,8 @@ fn an_interleaved_scene_trains_both_stages_with_no_structural_projection() {
 
     // The mean structural projection needs a view with every channel: refused, naming the way out.
     let mut mean = cfg;
-    mean.structural = StructuralSource::Mean;
-    let config = MethodConfig::Gaussian(Box::new(mean));
+    mean.spectral.structural = StructuralSource::Mean;
+    let config = MethodConfig::from(mean);
     let e = run_into(&config, &sc, tempfile::tempdir().unwrap().path(), false).unwrap_err();
     assert!(matches!(e, Error::Domain(_)), "{e}");
     assert!(e.to_string().contains("structural: joint"), "{e}");

@@ -12,6 +12,7 @@
 //! With `stage2.basis` the spectral head is the basis-material head instead ([`crate::gaussians::spectral::basis`]): the
 //! Gaussians carry one density per basis material and the channels are formed by the physics.
 
+use super::config::{FourDsgConfig, FourDsgMethod};
 use crate::Result;
 use crate::device::upload;
 use crate::gaussians::finish::{SharedModel, Trained};
@@ -21,7 +22,7 @@ use crate::gaussians::spectral::{BasisHead, CurveFit};
 use crate::gaussians::train::Evaluator;
 use crate::gaussians::train::data::Measured;
 use crate::gaussians::train::{ChannelMap, Journal, Stage, Supervision};
-use crate::gaussians::{GaussianConfig, GaussianMethod, GaussianModel, Learnable, World};
+use crate::gaussians::{GaussianModel, Learnable, World};
 use crate::methods::fourdsg::stage1::SharedGeometry;
 use burn::optim::AdamConfig;
 use burn::tensor::{Device, Tensor};
@@ -54,7 +55,7 @@ impl Spectral {
 
 /// Train the spectral stage of `config` on `scene` (its observed channels) from `shared`.
 pub fn train_spectral(
-    config: &GaussianConfig,
+    config: &FourDsgConfig,
     scene: &Scene,
     shared: SharedGeometry,
     device: &Device,
@@ -87,8 +88,8 @@ pub fn train_spectral(
     });
     let ratios = channel_ratios(scene, &sviews);
     let mut head = None;
-    let raw = match (config.method, &config.stage2.basis) {
-        (GaussianMethod::FourDsg, Some(cfg)) => {
+    let raw = match (config.method, &config.spectral.stage2.basis) {
+        (FourDsgMethod::Full, Some(cfg)) => {
             let (specs, exact) = channel_specs(scene)?;
             if !exact {
                 journal.observer.note(
@@ -102,19 +103,25 @@ pub fn train_spectral(
             model.set_densities(upload(start, cfg.materials.len(), device));
             let stage = Stage {
                 map: ChannelMap::Basis(&h),
-                ..Stage::spectral(config, "basis", &geometry.volume, &world)
+                ..Stage::spectral(
+                    &config.geometry,
+                    &config.spectral.stage2,
+                    "basis",
+                    &geometry.volume,
+                    &world,
+                )
             };
             journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
             let raw = h.channel_raw(&model);
             head = Some(h);
             raw
         }
-        (GaussianMethod::FourDsg, None) if m >= 2 => {
-            let s2 = &config.stage2;
+        (FourDsgMethod::Full, None) if m >= 2 => {
+            let s2 = &config.spectral.stage2;
             let tau: Vec<f32> = scene.channels.iter().map(|c| c.tau as f32).collect();
             let grid = SpectralGrid::new(tau)?;
             let ad = device.clone().autodiff();
-            let mut net = s2.curve_model.init(&grid, &ad, config.seed)?;
+            let mut net = s2.curve_model.init(&grid, &ad, config.geometry.seed)?;
             let u = sorted_finite(model.to_host().densities);
             net.set_baseline(&spectral_baseline(&u, &ratios))?;
             if s2.condition_on_stage1 {
@@ -128,13 +135,18 @@ pub fn train_spectral(
                 lambda_curve: s2.lambda_curve,
                 lr: s2.lr_network,
             };
-            let stage =
-                Stage::spectral(config, s2.curve_model.kind.name(), &geometry.volume, &world);
+            let stage = Stage::spectral(
+                &config.geometry,
+                s2,
+                s2.curve_model.kind.name(),
+                &geometry.volume,
+                &world,
+            );
             journal.train(&mut model, &sup, eval.as_ref(), &stage, Some(&mut fit))?;
             fit.raw_densities(&model)?
         }
         _ => {
-            if config.method == GaussianMethod::FourDsg {
+            if config.method == FourDsgMethod::Full {
                 journal.observer.note(
                     Level::Info,
                     "one observed channel: no spectral axis, stage 2 is skipped and the stage-1 \
@@ -154,9 +166,15 @@ pub fn train_spectral(
                 .collect();
             model.set_densities(upload(raw, m, device));
             let stage = Stage {
-                iterations: config.density_iterations,
+                iterations: config.spectral.density_iterations,
                 learn: Learnable::DENSITY,
-                ..Stage::spectral(config, "densities", &geometry.volume, &world)
+                ..Stage::spectral(
+                    &config.geometry,
+                    &config.spectral.stage2,
+                    "densities",
+                    &geometry.volume,
+                    &world,
+                )
             };
             journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
             model.densities.value.clone()
