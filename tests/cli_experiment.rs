@@ -244,6 +244,21 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("runs/ph3-v13-shipped-s0/naf  to run\n"),
         "{t}"
     );
+    // The spectral suite: interleaved scenes at 13 angles per channel (39 for 3 channels, 52 for
+    // 4 tube voltages), their every-channel reference at the same angles, and two low-dose levels.
+    let spectral = repo.join("configs/suites/spectral.yaml");
+    let (ok, t) = prism(&["experiment", path(&spectral), "-o", path(&out), "--dry-run"]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("10 scene cells:")
+            && t.contains("scenes/chest-v39-interleaved-s0  (64³, 39 views, 3 channels)")
+            && t.contains("scenes/kvp-v52-interleaved-s0  (64³, 52 views, 4 channels)")
+            && t.contains("scenes/head-v39-shipped-s0  (64³, 39 views, 3 channels)")
+            && t.contains("scenes/pcct-v13-i0-3e3-s0  (64³, 13 views, 4 channels)")
+            && t.contains("27 run cells:")
+            && t.contains("runs/head-v39-interleaved-s0/r2gs  to run\n"),
+        "{t}"
+    );
     let paper = repo.join("configs/suites/paper.yaml");
     let (ok, t) = prism(&["experiment", path(&paper), "-o", path(&out), "--dry-run"]);
     assert!(ok, "{t}");

@@ -98,7 +98,7 @@ impl Plan {
         let mut scene_index: BTreeMap<String, usize> = BTreeMap::new();
         let mut runs: Vec<RunCell> = Vec::new();
         let mut run_index: BTreeMap<String, usize> = BTreeMap::new();
-        let mut shipped: BTreeMap<&str, (usize, usize)> = BTreeMap::new();
+        let mut shipped: BTreeMap<&str, (usize, usize, usize)> = BTreeMap::new();
         let mut methods: BTreeMap<&str, Method> = BTreeMap::new();
         let mut studies = Vec::new();
         for (i, st) in s.studies.iter().enumerate() {
@@ -107,18 +107,18 @@ impl Plan {
             for scene in &st.scenes {
                 let spec = &s.scenes[scene];
                 let base = Overrides::parse(&spec.set)?;
-                let (n, views0) = match shipped.get(scene.as_str()) {
+                let (n, channels, views0) = match shipped.get(scene.as_str()) {
                     Some(&v) => v,
                     None => {
                         let c = SimulateConfig::load_with(&spec.config, &base)
                             .map_err(|e| Error::from(e).in_cell(format!("scenes.{scene}")))?;
-                        let v = (c.geometry.volume.n, c.geometry.views);
+                        let v = (c.geometry.volume.n, c.channels.len(), c.geometry.views);
                         shipped.insert(scene, v);
                         v
                     }
                 };
                 for &views in &st.views {
-                    let views = views.resolve(n, views0);
+                    let views = views.resolve(n, channels, views0);
                     for noise in &st.noise {
                         for &seed in &st.seeds {
                             let key = format!("{scene}-v{views}-{}-s{seed}", noise.name);

@@ -123,15 +123,24 @@ pub enum Regime {
     /// The paper's angular undersampling at the scene's grid: round(50·n/256) views for an n³
     /// volume (64³ → 13, 128³ → 25, 256³ → 50).
     Undersampled,
+    /// The undersampled count for every channel: C·round(50·n/256) distinct angles for C
+    /// channels (64³, 3 channels → 39). With `acquisition={views: interleaved}` each channel is
+    /// measured at its own undersampled set of angles; with every channel at every angle it is
+    /// the full-data reference of such a scan.
+    UndersampledPerChannel,
 }
 
 impl ViewsSpec {
-    /// The training views for a scene of `n`³ voxels configured with `shipped` views.
-    pub fn resolve(self, n: usize, shipped: usize) -> usize {
+    /// The training views for a scene of `n`³ voxels and `channels` channels configured with
+    /// `shipped` views.
+    pub fn resolve(self, n: usize, channels: usize, shipped: usize) -> usize {
         match self {
             ViewsSpec::Count(v) => v,
             ViewsSpec::Regime(Regime::Shipped) => shipped,
             ViewsSpec::Regime(Regime::Undersampled) => undersampled_views(n),
+            ViewsSpec::Regime(Regime::UndersampledPerChannel) => {
+                undersampled_views(n) * channels.max(1)
+            }
         }
     }
 }
@@ -176,7 +185,9 @@ pub struct StudySpec {
     pub methods: Vec<String>,
     #[serde(default = "default_views")]
     pub views: Vec<ViewsSpec>,
-    #[serde(default = "default_noise")]
+    /// Named overrides of the scene config: noise levels, and acquisitions (interleaved views,
+    /// split photons); `acquisitions:` is the same axis.
+    #[serde(default = "default_noise", alias = "acquisitions")]
     pub noise: Vec<NoiseSpec>,
     #[serde(default = "default_seeds")]
     pub seeds: Vec<u64>,
@@ -371,9 +382,14 @@ mod tests {
         assert_eq!(undersampled_views(4), 2);
         let s = load(SUITE, &[]).unwrap();
         let v = &s.suite.studies[0].views;
-        assert_eq!(v[0].resolve(64, 50), 13);
-        assert_eq!(v[1].resolve(64, 50), 7);
-        assert_eq!(ViewsSpec::Regime(Regime::Shipped).resolve(64, 50), 50);
+        assert_eq!(v[0].resolve(64, 3, 50), 13);
+        assert_eq!(v[1].resolve(64, 3, 50), 7);
+        assert_eq!(ViewsSpec::Regime(Regime::Shipped).resolve(64, 3, 50), 50);
+        let each = ViewsSpec::Regime(Regime::UndersampledPerChannel);
+        assert_eq!(
+            (each.resolve(64, 3, 50), each.resolve(64, 8, 50)),
+            (39, 104)
+        );
         // Paths are relative to the suite file; defaults fill the axes.
         assert!(s.suite.scenes["a"].config.is_absolute());
         assert_eq!(s.suite.studies[0].seeds, vec![0]);
