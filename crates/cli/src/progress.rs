@@ -7,7 +7,9 @@
 //! paper-scale run takes; instead, the bar's line is written to stderr as plain text, one line
 //! at most every [`LOG_EVERY`], without cursor movement.
 
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle, TermLike};
+use indicatif::{
+    HumanDuration, ProgressBar, ProgressDrawTarget, ProgressState, ProgressStyle, TermLike,
+};
 use prism_domain::observe::{Level, Observer};
 use std::fmt;
 use std::io::{self, IsTerminal, Write};
@@ -17,8 +19,20 @@ use std::time::{Duration, Instant};
 /// Minimum time between two progress lines in a log.
 pub const LOG_EVERY: Duration = Duration::from_secs(30);
 
-const BAR: &str = "{msg} [{bar:25}] {pos}/{len} {elapsed_precise} ETA {eta}";
+const BAR: &str = "{msg} [{bar:25}] {pos}/{len} {elapsed_precise} ETA {pace_eta}";
 const SPINNER: &str = "{spinner} [{elapsed_precise}] {msg}";
+
+/// The time left at the phase's mean pace so far, elapsed·(len − pos)/pos; none before the first
+/// step. indicatif's own estimate follows a recent rate that decays between rare steps (a suite's
+/// cells take minutes each), and showed thousands of years.
+fn pace_eta(elapsed: Duration, pos: u64, len: Option<u64>) -> Option<Duration> {
+    let len = len?;
+    if pos == 0 {
+        return None;
+    }
+    let left = len.saturating_sub(pos) as f64 / pos as f64;
+    Some(elapsed.mul_f64(left))
+}
 
 /// Progress on stderr (see the module docs).
 pub struct Bars {
@@ -58,10 +72,17 @@ impl Observer for Bars {
     fn phase(&self, name: &str, total: u64) {
         let template = if total > 0 { BAR } else { SPINNER };
         if let Ok(style) = ProgressStyle::with_template(template) {
+            let style = style.with_key("pace_eta", |s: &ProgressState, w: &mut dyn fmt::Write| {
+                let _ = match pace_eta(s.elapsed(), s.pos(), s.len()) {
+                    Some(t) => write!(w, "{}", HumanDuration(t)),
+                    None => write!(w, "–"),
+                };
+            });
             self.bar.set_style(style.progress_chars("=> "));
         }
         self.bar.set_length(total);
         self.bar.set_position(0);
+        self.bar.reset_elapsed();
         self.bar.reset_eta();
         self.bar.set_message(name.to_string());
         self.shown.call_once(|| {
@@ -181,6 +202,18 @@ mod tests {
         fn flush(&mut self) -> io::Result<()> {
             Ok(())
         }
+    }
+
+    #[test]
+    fn the_eta_follows_the_mean_pace_of_the_phase() {
+        let min = Duration::from_secs(60);
+        // 3 of 4 cells in 30 min: one more cell at 10 min each.
+        assert_eq!(pace_eta(30 * min, 3, Some(4)), Some(10 * min));
+        assert_eq!(pace_eta(30 * min, 4, Some(4)), Some(Duration::ZERO));
+        assert_eq!(pace_eta(30 * min, 0, Some(4)), None);
+        assert_eq!(pace_eta(30 * min, 2, None), None);
+        // A position past the length (a resumed phase) reads as done, not negative.
+        assert_eq!(pace_eta(min, 5, Some(4)), Some(Duration::ZERO));
     }
 
     #[test]
