@@ -205,6 +205,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && !t.contains("naf"),
         "{t}"
     );
+    assert!(!out.exists(), "a dry run creates nothing");
     let (ok, t) = prism(&[
         "experiment",
         path(&cpu),

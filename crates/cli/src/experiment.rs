@@ -186,7 +186,6 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
         bail!("give a suite file and -o <dir> (or `prism experiment collect <suite> -o <dir>`)");
     };
     let (loaded, plan) = load(suite, &a.set)?;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let bars = Bars::new();
     let evaluation = evaluation(&loaded)?;
     let options = ExecOptions {
@@ -203,6 +202,8 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
         bars.finish();
         return dry_run(&plan, out, &options, &selection);
     }
+    // Only now: a dry run or a refused selection leaves no directory behind.
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     if a.slurm.slurm {
         let mut pass_on = Vec::new();
         for s in &a.set.set {
