@@ -1,4 +1,4 @@
-//! End-to-end: simulate a small scene, reconstruct it with each classic method through the
+//! End-to-end: simulate a small scene, reconstruct it with each classic method (TV included) through the
 //! `prism` binary, and check the run directory and the `metrics.json` contract.
 
 mod common;
@@ -12,6 +12,7 @@ fn recon_writes_volumes_config_and_metrics() {
         ("fdk", ""),
         ("sart", "iterations: 2\n"),
         ("cgls", "iterations: 3\n"),
+        ("tv", "iterations: 20\n"),
     ] {
         let rc = dir.path().join(format!("{method}.yaml"));
         std::fs::write(&rc, format!("method: {method}\n{extra}")).unwrap();

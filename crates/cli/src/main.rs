@@ -65,7 +65,7 @@ enum Command {
     Simulate(simulate::Args),
     /// Print a scene's geometry, channels, availability and value ranges.
     Info(info::Args),
-    /// Reconstruct every channel (fdk | sart | cgls | naf | r2gs | 4dsg-stage1 | 4dsg) into a run directory.
+    /// Reconstruct every channel (fdk | sart | cgls | tv | naf | r2gs | 4dsg-stage1 | 4dsg) into a run directory.
     Recon(recon::ReconArgs),
     /// Volume or projections of a trained spectral model at any spectral coordinate.
     Query(query::Args),

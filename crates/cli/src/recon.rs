@@ -11,7 +11,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct ReconArgs {
-    /// Reconstruction config (YAML) with `method: fdk | sart | cgls | naf | r2gs | 4dsg-stage1 | 4dsg`
+    /// Reconstruction config (YAML) with `method: fdk | sart | cgls | tv | naf | r2gs | 4dsg-stage1 | 4dsg`
     /// and that method's settings (see configs/recon/).
     config: PathBuf,
     /// Scene directory (scene.yaml + .npy arrays), or an R²-Gaussian case folder

@@ -1,7 +1,8 @@
 //! The classic reconstruction algorithms, as operators on one channel's projections: FDK/FBP
 //! (with Parker weights for short scans) on the voxel-driven backprojector, the SART family
 //! (SART / OS-SART / SIRT) and CGLS on the Joseph projector and its exact adjoint
-//! (`prism_domain::projector`), and ramp filters. The classic methods
+//! (`prism_domain::projector`), total-variation regularised least squares over one or several
+//! coupled channels (PDHG, [`tv`]) with its gradient operator, and ramp filters. The classic methods
 //! ([`crate::methods::classic`]) run them per channel; FDK also initialises the Gaussians and
 //! NAF ([`crate::init`]).
 //!
@@ -11,12 +12,15 @@
 pub mod cgls;
 pub mod fdk;
 pub mod filter;
+pub mod gradient;
 pub mod sart;
+pub mod tv;
 
 pub use cgls::cgls;
 pub use fdk::{ScanKind, fdk, scan_kind};
 pub use filter::{RampFilter, Window};
 pub use sart::{Order, SartOptions, sart};
+pub use tv::{ChannelData, Coupling, TvOptions, Weighting, tv};
 
 use ndarray::Array3;
 use rayon::prelude::*;
@@ -33,3 +37,5 @@ pub(crate) fn par_zip(a: &mut Array3<f32>, b: &Array3<f32>, f: impl Fn(f32, f32)
 
 #[cfg(test)]
 mod iterative_tests;
+#[cfg(test)]
+mod tv_tests;

@@ -2,7 +2,8 @@
 //! `method:` is read as a [`Method`] first, which picks the configuration type of its family.
 //! The config loader (and through it the CLI) and the experiment planner read the methods from here.
 //!
-//! * [`classic`]: FDK, SART, CGLS per channel (the algorithms are [`crate::algorithms`]);
+//! * [`classic`]: FDK, SART, CGLS per channel, and TV-regularised least squares with the
+//!   channels coupled (the algorithms are [`crate::algorithms`]);
 //! * [`r2gs`]: R²-Gaussian, one set of Gaussians per channel;
 //! * [`fourdsg`]: 4D-SG, shared geometry then a spectral head;
 //! * [`naf`]: NAF, a hash-grid neural field per channel.
@@ -35,6 +36,7 @@ pub enum Method {
     Fdk,
     Sart,
     Cgls,
+    Tv,
     R2gs,
     FourDsgStage1,
     FourDsg,
@@ -58,6 +60,7 @@ impl Method {
             Method::Fdk => Family::Classic(ClassicMethod::Fdk),
             Method::Sart => Family::Classic(ClassicMethod::Sart),
             Method::Cgls => Family::Classic(ClassicMethod::Cgls),
+            Method::Tv => Family::Classic(ClassicMethod::Tv),
             Method::R2gs => Family::R2gs,
             Method::FourDsgStage1 => Family::FourDsg(FourDsgMethod::Stage1),
             Method::FourDsg => Family::FourDsg(FourDsgMethod::Full),
@@ -66,10 +69,11 @@ impl Method {
     }
 
     /// Every method (an unknown name's error lists them in this order).
-    pub const ALL: [Method; 7] = [
+    pub const ALL: [Method; 8] = [
         Method::Fdk,
         Method::Sart,
         Method::Cgls,
+        Method::Tv,
         Method::R2gs,
         Method::FourDsgStage1,
         Method::FourDsg,
@@ -82,6 +86,7 @@ impl Method {
             Method::Fdk => "fdk",
             Method::Sart => "sart",
             Method::Cgls => "cgls",
+            Method::Tv => "tv",
             Method::R2gs => "r2gs",
             Method::FourDsgStage1 => "4dsg-stage1",
             Method::FourDsg => "4dsg",
@@ -179,6 +184,7 @@ impl From<ClassicMethod> for Method {
             ClassicMethod::Fdk => Method::Fdk,
             ClassicMethod::Sart => Method::Sart,
             ClassicMethod::Cgls => Method::Cgls,
+            ClassicMethod::Tv => Method::Tv,
         }
     }
 }

@@ -4,6 +4,8 @@
 //! Every method holds the scene (projections and reference volumes) and its output volumes.
 //! On top of that, per channel (channels run one after another):
 //! * classic methods: the filtered projections or residuals of one channel and a few volumes;
+//!   `tv` holds every channel at once (primal, extrapolated and step volumes, the gradient duals,
+//!   and a data dual with its steps per training ray);
 //! * Gaussian methods: the Gaussians with their gradients and Adam moments, the iteration's
 //!   transient tensors (per Gaussian, per detector pixel, per TV-patch voxel) and the evaluation's
 //!   volume-sized buffers. The Gaussian count is not known before training: the estimate is given
@@ -84,6 +86,16 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 f.add(
                     format!("SART's column sums ({kept} of {blocks} blocks kept)"),
                     bytes(voxels, 4 * kept),
+                );
+            }
+            if c.method == ClassicMethod::Tv {
+                f.add(
+                    format!("TV's primal, step and gradient-dual volumes ({channels} channels)"),
+                    bytes(voxels, 4 * 6 * channels),
+                );
+                f.add(
+                    "TV's data duals and their steps (every channel's training rays)",
+                    bytes(train * view_pixels, 8 * channels),
                 );
             }
         }

@@ -1,6 +1,8 @@
-//! The classic methods (`fdk`, `sart`, `cgls`): every channel reconstructed independently from
-//! its training views by one of [`crate::algorithms`]. [`config`] holds the YAML, [`run`] the run,
-//! [`bench`] the comparison with RTK (`prism bench classic`).
+//! The classic methods: `fdk`, `sart` and `cgls` reconstruct every channel independently from
+//! its training views by one of [`crate::algorithms`]; `tv` reconstructs every channel at once,
+//! each from its own views, with a total-variation regulariser that couples them
+//! ([`crate::algorithms::tv`]). [`config`] holds the YAML, [`run`] the run, [`bench`] the
+//! comparison with RTK (`prism bench classic`).
 
 pub mod bench;
 pub mod config;
@@ -8,7 +10,7 @@ pub(crate) mod run;
 
 pub use config::{ClassicConfig, ClassicMethod};
 
-use crate::algorithms::{cgls, fdk, sart};
+use crate::algorithms::{ChannelData, cgls, fdk, sart, tv};
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView3, Axis};
 use prism_domain::geometry::Geometry;
@@ -45,5 +47,61 @@ pub fn reconstruct_channel(
             config.resolved_iterations(),
             progress,
         ),
+        ClassicMethod::Tv => {
+            let a = Joseph::new(&sub)?;
+            let one = ChannelData {
+                projector: &a,
+                projections: p.view(),
+                weight: 1.0,
+            };
+            let mut v = tv(&[one], &config.tv_options(), progress)?;
+            Ok(v.remove(0))
+        }
     }
+}
+
+/// Reconstruct every channel (`projections[c]` with every view of `geometry`, `views[c]` its
+/// training views) with `method: tv`, the channels coupled by the regulariser. A channel's
+/// regulariser weight is the inverse of its gain, its mean training line integral over the
+/// channels' mean (1 for a channel of mean zero), so channels of different contrast count alike.
+pub fn reconstruct_jointly(
+    config: &ClassicConfig,
+    geometry: &Geometry,
+    projections: &[ArrayView3<f32>],
+    views: &[Vec<usize>],
+    progress: &mut dyn FnMut(usize),
+) -> Result<Vec<Array3<f32>>> {
+    config.validate()?;
+    let mut projectors = Vec::with_capacity(views.len());
+    let mut data = Vec::with_capacity(views.len());
+    for (c, (b, v)) in projections.iter().zip(views).enumerate() {
+        if v.is_empty() {
+            return Err(Error::invalid(
+                format!("channels[{c}].views"),
+                "the view list is empty",
+            ));
+        }
+        projectors.push(Joseph::new(&geometry.with_views(v))?);
+        data.push(b.select(Axis(0), v));
+    }
+    let means: Vec<f64> = data
+        .iter()
+        .map(|b| b.iter().map(|&v| v as f64).sum::<f64>() / b.len().max(1) as f64)
+        .collect();
+    let overall = means.iter().sum::<f64>() / means.len().max(1) as f64;
+    let channels: Vec<ChannelData> = projectors
+        .iter()
+        .zip(&data)
+        .zip(&means)
+        .map(|((a, b), &m)| ChannelData {
+            projector: a,
+            projections: b.view(),
+            weight: if m > 0.0 && overall > 0.0 {
+                (overall / m) as f32
+            } else {
+                1.0
+            },
+        })
+        .collect();
+    tv(&channels, &config.tv_options(), progress)
 }

@@ -1,6 +1,7 @@
-//! A classic method's run: every channel reconstructed independently from its training views.
+//! A classic method's run: every channel reconstructed from its training views, independently
+//! or (`tv`) jointly.
 
-use super::{ClassicConfig, reconstruct_channel};
+use super::{ClassicConfig, ClassicMethod, reconstruct_channel, reconstruct_jointly};
 use crate::Result;
 use crate::evaluate::{Metrics, Reconstruction, TestProjector, metrics};
 use crate::record::RunDir;
@@ -20,23 +21,46 @@ pub(crate) fn run(
     let setup = Setup::new(scene, Vec::new(), observer)?;
     let iters = config.resolved_iterations();
     let start = Instant::now();
-    let mut volumes = Vec::new();
-    for (c, ch) in scene.channels.iter().enumerate() {
+    let volumes = if config.method == ClassicMethod::Tv {
+        let labels: Vec<&str> = scene.channels.iter().map(|c| c.label.as_str()).collect();
         observer.phase(
-            &format!("{} {}", config.method.name(), ch.label),
+            &format!("tv ({}) {}", config.tv.coupling.name(), labels.join(", ")),
             iters as u64,
         );
-        let vol = reconstruct_channel(
+        let projections: Vec<_> = (0..scene.channels.len())
+            .map(|c| scene.channel_projections(c))
+            .collect();
+        let volumes = reconstruct_jointly(
             config,
             &scene.geometry,
-            scene.channel_projections(c),
-            &setup.views[c],
+            &projections,
+            &setup.views,
             &mut |i| observer.progress(i as u64, ""),
-        )
-        .map_err(|e| e.under(&format!("channels[{c}]")))?;
-        dir.write_volume(&ch.label, &vol)?;
-        volumes.push(vol);
-    }
+        )?;
+        for (ch, vol) in scene.channels.iter().zip(&volumes) {
+            dir.write_volume(&ch.label, vol)?;
+        }
+        volumes
+    } else {
+        let mut volumes = Vec::new();
+        for (c, ch) in scene.channels.iter().enumerate() {
+            observer.phase(
+                &format!("{} {}", config.method.name(), ch.label),
+                iters as u64,
+            );
+            let vol = reconstruct_channel(
+                config,
+                &scene.geometry,
+                scene.channel_projections(c),
+                &setup.views[c],
+                &mut |i| observer.progress(i as u64, ""),
+            )
+            .map_err(|e| e.under(&format!("channels[{c}]")))?;
+            dir.write_volume(&ch.label, &vol)?;
+            volumes.push(vol);
+        }
+        volumes
+    };
     let wall_s = start.elapsed().as_secs_f64();
     metrics(
         scene,
