@@ -14,13 +14,18 @@
 # .gz (`run` unpacks binaries that arrived only gzipped), a Vulkan loader (libvulkan.so.1) and
 # MANIFEST.txt.
 # `run` needs the repository's configs/ and data/ (the chest scene is simulated from data/ct/) and
-# writes OUT (default runs/gpu-bench): one log per step, the run directories, summary.txt.
+# writes OUT (default runs/gpu-bench): one log per step, the run directories, summary.txt (appended
+# to, one line per step with its exit status and wall time).
 # Environment for `run`: GPU_BENCH_BUDGET=default|paper (recon configs: the CPU defaults, or the
-# paper's 30k-iteration budgets), GPU_BENCH_STEPS (default "tests bench scene r2gs 4dsg").
+# paper's 30k-iteration budgets), GPU_BENCH_STEPS (default "tests bench scene r2gs 4dsg"),
+# GPU_BENCH_LIMIT (seconds per step, default none: a step past it is stopped and recorded with
+# rc=124, and its log and run directory keep what it reached).
 #
-# Vulkan on the GPU machine: the NVIDIA driver's ICD (nvidia_icd.json) is used when installed;
-# otherwise, where the driver's libGLX_nvidia.so.0 exists, an ICD file naming it is written into
-# OUT and selected with VK_ICD_FILENAMES. wgpu then reports the adapter it picked in the logs.
+# Vulkan on the GPU machine: the NVIDIA driver's ICD (nvidia_icd.json) is used when installed,
+# in the system's ICD folders or under the driver's own /usr/local/nvidia (selected with
+# VK_DRIVER_FILES); otherwise, where the driver's libGLX_nvidia.so.0 exists, an ICD file naming it
+# is written into OUT and selected with VK_ICD_FILENAMES. wgpu then reports the adapter it picked
+# in the logs.
 set -eu
 
 mode=${1:-}
@@ -89,6 +94,12 @@ vulkan_setup() {
     for d in /usr/share/vulkan/icd.d /etc/vulkan/icd.d; do
         [ -f "$d/nvidia_icd.json" ] && return 0
     done
+    own=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+    if [ -f "$own" ]; then
+        export VK_DRIVER_FILES="$own" VK_ICD_FILENAMES="$own"
+        echo "gpu-bench: using the driver's ICD $own" >&2
+        return 0
+    fi
     if ldconfig -p 2>/dev/null | grep -q libGLX_nvidia.so.0; then
         icd="$out/nvidia_icd.json"
         printf '{"file_format_version":"1.0.0","ICD":{"library_path":"libGLX_nvidia.so.0","api_version":"1.3.0"}}\n' >"$icd"
@@ -105,7 +116,9 @@ step() {
     shift
     echo "gpu-bench: $name" >&2
     start=$(date +%s)
-    if "$@" >"$out/$name.log" 2>&1; then rc=0; else rc=$?; fi
+    limit=
+    [ -n "${GPU_BENCH_LIMIT:-}" ] && limit="timeout $GPU_BENCH_LIMIT"
+    if $limit "$@" >"$out/$name.log" 2>&1; then rc=0; else rc=$?; fi
     echo "$name rc=$rc wall_s=$(($(date +%s) - start))" >>"$out/summary.txt"
 }
 
@@ -124,7 +137,8 @@ run() {
     [ -d configs ] && [ -d data ] || die "run: start from the repository root (configs/ and data/ are needed)"
     mkdir -p "$out"
     vulkan_setup
-    : >"$out/summary.txt"
+    # Appended, so that steps run by separate calls into one OUT (each with its own limit) share it.
+    echo "run $(date -u +%Y-%m-%dT%H:%M:%SZ): ${GPU_BENCH_STEPS:-tests bench scene r2gs 4dsg}" >>"$out/summary.txt"
     command -v nvidia-smi >/dev/null && nvidia-smi -L >>"$out/summary.txt" 2>&1 || true
     prism="$pack/bin/prism"
     case ${GPU_BENCH_BUDGET:-default} in
