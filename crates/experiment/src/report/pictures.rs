@@ -14,7 +14,7 @@ use prism_domain::metrics::quantile;
 use prism_domain::metrics::{SsimParams, projection_metrics};
 use prism_domain::scene::Scene;
 use prism_recon::device::cpu_device;
-use prism_recon::methods::fourdsg::query::{Query, QueryAt};
+use prism_recon::methods::fourdsg::query::{BasisModel, Predictor, Query, QueryAt};
 use prism_recon::record::RunDir;
 use std::path::Path;
 
@@ -142,14 +142,21 @@ pub(crate) fn holdout(ctx: &mut Context, p: &StudyPoint) -> Result<String> {
         return Ok(String::new());
     }
     let sc = Scene::load(ctx.plan.scene_dir(ctx.out, ctx.plan.runs[p.run].scene))?;
-    let query = Query::open(&RunDir::spectral_model(&dir)?, &cpu_device())?;
+    let model = RunDir::spectral_model(&dir)?;
+    let query = Query::open(&model, &cpu_device())?;
+    let basis = BasisModel::open(&model, &cpu_device())?;
     let scene_label = ctx.loaded.suite.scene_label(&p.scene).to_string();
     let mut md = String::new();
     for h in &run.holdout {
         let Some(c) = sc.channels.iter().position(|ch| ch.label == h.label) else {
             continue;
         };
-        let pred = query.projections(QueryAt::Tau(h.tau), false)?;
+        // As the run predicted it: a monoenergetic channel of a basis run from the materials'
+        // attenuation at its energy, else interpolated along the spectral axis.
+        let pred = match (&basis, h.predictor) {
+            (Some(b), Predictor::Physics) if h.unit == "keV" => b.vmi_projections(h.coordinate)?,
+            _ => query.projections(QueryAt::Tau(h.tau), false)?,
+        };
         let truth = sc.channel_projections(c);
         let views = sc.views_with_channel(c);
         let shown: Vec<usize> = {

@@ -390,6 +390,33 @@ fn four_dsg_trains_the_curve_model_and_predicts_a_held_out_channel() {
 }
 
 #[test]
+fn a_basis_run_predicts_a_held_out_channel_by_the_physics() {
+    // Water and bone from 40 and 70 keV; 55 keV is formed from the materials' attenuation at
+    // 55 keV (not interpolated), and holdout.json says so.
+    use crate::gaussians::spectral::BasisConfig;
+    use prism_domain::physics::Material;
+    let scene = three_channel_scene();
+    let dev = cpu_device();
+    let mut cfg = tiny(FourDsgMethod::Full);
+    cfg.geometry.iterations = 20;
+    cfg.geometry.densify = None;
+    cfg.spectral.stage2.iterations = 20;
+    cfg.spectral.stage2.basis = Some(BasisConfig {
+        materials: vec![Material::Water, Material::CorticalBone],
+        init_share: 0.05,
+    });
+    cfg.spectral.holdout_channels = vec![scene.channels[1].label.clone()];
+    let dir = tempfile::tempdir().unwrap();
+    run_on(&cfg, &scene, dir.path(), &dev).unwrap();
+    let holdout: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join(RunDir::HOLDOUT)).unwrap())
+            .unwrap();
+    let h = &holdout[0];
+    assert_eq!(h["predictor"], "physics", "{holdout}");
+    assert!(h["volume"]["psnr"].as_f64().unwrap() > 15.0, "{holdout}");
+}
+
+#[test]
 fn bad_holdouts_and_single_channel_scenes_are_handled() {
     let scene = three_channel_scene();
     let mut cfg = tiny(FourDsgMethod::Full);

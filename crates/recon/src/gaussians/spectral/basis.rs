@@ -183,6 +183,23 @@ impl BasisHead {
         })
     }
 
+    /// Raw densities `[K, 1]` of a channel the head was not trained on (a held-out one), from
+    /// the same physics as [`BasisHead::channel_raw`]: its reference attenuation
+    /// `Σ_b v_b·μ̄_b(spec)/μ̂_b` (normalised), with μ̄_b(spec) the effective attenuation of
+    /// material b in that channel ([`ChannelSpec::effective_mu`]). Errors name `spec`'s field.
+    pub fn unseen_raw(&self, spec: &ChannelSpec, model: &GaussianModel) -> Result<Tensor<2>> {
+        let coef: Vec<f64> = self
+            .basis
+            .materials()
+            .iter()
+            .zip(&self.reference_mu)
+            .map(|(&m, r)| Ok(spec.effective_mu(m)? / r))
+            .collect::<prism_domain::Result<_>>()?;
+        Ok(mix_raw(&model.densities.value, |v, out| {
+            out.push(coef.iter().zip(v).map(|(a, v)| a * v).sum());
+        }))
+    }
+
     /// Raw common densities `[K, 1]` of a model whose density columns are the raw basis columns:
     /// the channels' mean attenuation `Σ_b v_b·mean_c(μ̄_cb/μ̂_b)` (normalised), through the
     /// inverse softplus; the density a structural stage would have fitted.

@@ -108,6 +108,7 @@ pub(crate) fn spectral(
         raw: &s.raw,
         world: &s.world,
         info: &info,
+        basis: s.basis.as_ref(),
     };
     let (predicted, scores) = predict_holdout(&hold, setup.full, &setup.held, eval)?;
     dir.write_json(RunDir::HOLDOUT, &scores)?;

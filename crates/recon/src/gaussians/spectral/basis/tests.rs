@@ -175,6 +175,54 @@ fn the_start_keeps_the_structural_density() {
     }
 }
 
+/// An unseen channel is formed by the same physics as a trained one: at a trained channel's spec
+/// `unseen_raw` is that channel's column of `channel_raw`, and at a monoenergetic 55 keV it is
+/// `Σ_b v_b·μ_b(55 keV)/μ̂_b` from the attenuation table.
+#[test]
+fn an_unseen_channel_follows_the_materials_attenuation() {
+    let dev = cpu_device();
+    let cfg = BasisConfig::default();
+    let head = BasisHead::new(&cfg, "stage2", &specs(), &WORLD, &dev).unwrap();
+    let raw = [0.3f32, -1.0, 2.0, 1.5, -0.2, 0.1];
+    let mut host = HostGaussians::empty(3);
+    for (i, g) in raw.chunks(3).enumerate() {
+        host.means.extend([i as f32 * 0.1, 0.0, 0.0]);
+        host.scales.extend([0.0; 3]);
+        host.rotations.extend([1.0, 0.0, 0.0, 0.0]);
+        host.densities.extend_from_slice(g);
+    }
+    let bounds = ScaleBounds {
+        min: 0.001,
+        max: 0.5,
+    };
+    let model = GaussianModel::new(&host, bounds, &dev);
+    let act = |r: f32| softplus(r as f64);
+    let trained = host_values(&head.channel_raw(&model));
+    for (c, spec) in specs().iter().enumerate() {
+        let unseen = host_values(&head.unseen_raw(spec, &model).unwrap());
+        for g in 0..2 {
+            let (a, b) = (act(unseen[g]), act(trained[g * 4 + c]));
+            assert!(
+                (a - b).abs() < 1e-6 * b,
+                "channel {c}, Gaussian {g}: {a} vs {b}"
+            );
+        }
+    }
+    let kev = ChannelSpec::Mono { kev: 55.0 };
+    let unseen = host_values(&head.unseen_raw(&kev, &model).unwrap());
+    let mats = head.basis().materials();
+    for g in 0..2 {
+        let want: f64 = (0..3)
+            .map(|b| act(raw[g * 3 + b]) * mats[b].mu(55.0).unwrap() / head.reference_mu()[b])
+            .sum();
+        let got = act(unseen[g]);
+        assert!(
+            (got - want).abs() < 1e-5 * want,
+            "Gaussian {g}: {got} vs {want}"
+        );
+    }
+}
+
 /// A basis the channels cannot separate, or a bad start, is refused naming the field.
 #[test]
 fn bad_bases_are_refused() {

@@ -1,17 +1,20 @@
-//! Channels held out of training, predicted by the trained curves and scored against what the
-//! scene knows of them (their reference volume, their projections at every view): the contents
-//! of `holdout.json`.
+//! Channels held out of training, predicted by the trained curves (interpolated in raw density
+//! along the spectral axis) or, for a basis-head run, by the physics (the materials' attenuation
+//! in the held-out channel), and scored against what the scene knows of them (their reference
+//! volume, their projections at every view): the contents of `holdout.json`.
 
 use super::raw_at;
 use crate::Result;
 use crate::evaluate::{Evaluation, Scores, score};
 use crate::gaussians::io::ModelInfo;
+use crate::gaussians::spectral::BasisHead;
 use crate::gaussians::volume::render_views;
 use crate::gaussians::volume::volumes_with;
 use crate::gaussians::{GaussianModel, World};
 use crate::record::RunDir;
 use burn::tensor::Tensor;
 use ndarray::{Array3, Axis};
+use prism_domain::decompose::channel_specs;
 use prism_domain::metrics::{SsimParams, projection_metrics};
 use prism_domain::scene::Scene;
 use prism_gscnet::Extrapolation;
@@ -24,6 +27,20 @@ pub struct Holdout<'a> {
     pub raw: &'a Tensor<2>,
     pub world: &'a World,
     pub info: &'a ModelInfo,
+    /// The basis head of a basis-head run (`model`'s densities are then its basis columns).
+    pub basis: Option<&'a BasisHead>,
+}
+
+/// How a held-out channel was predicted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Predictor {
+    /// Raw densities interpolated between the neighbouring trained channels' (the default, and
+    /// what files written before the field existed hold).
+    #[default]
+    Interpolation,
+    /// The basis materials' attenuation in the held-out channel ([`BasisHead::unseen_raw`]).
+    Physics,
 }
 
 /// Scores of one predicted (held-out) channel: an entry of `holdout.json`.
@@ -33,6 +50,8 @@ pub struct HoldoutScore {
     pub tau: f64,
     pub coordinate: f64,
     pub unit: String,
+    #[serde(default)]
+    pub predictor: Predictor,
     /// The predicted volume's scores against its reference (the run's protocol), when the
     /// scene has references.
     pub volume: Option<Scores>,
@@ -42,20 +61,30 @@ pub struct HoldoutScore {
     pub views: usize,
 }
 
-/// Predict the `held` channels of `full` by interpolation and score them: the predicted volumes
-/// (mm⁻¹) and the scores, in `held` order.
+/// Predict the `held` channels of `full` (by the physics for a basis-head run, else by
+/// interpolation) and score them: the predicted volumes (mm⁻¹) and the scores, in `held` order.
 pub fn predict_holdout(
     h: &Holdout,
     full: &Scene,
     held: &[usize],
     eval: &Evaluation,
 ) -> Result<(Vec<Array3<f32>>, Vec<HoldoutScore>)> {
+    let specs = match h.basis {
+        Some(_) => Some(channel_specs(full)?.0),
+        None => None,
+    };
     let mut vols = Vec::new();
     let mut scores = Vec::new();
     for &c in held {
         let ch = &full.channels[c];
-        let raw = raw_at(h.raw, h.info, ch.tau, Extrapolation::Refuse)
-            .map_err(|e| e.under(&format!("holdout `{}`", ch.label)))?;
+        let (raw, predictor) = match (h.basis, &specs) {
+            (Some(head), Some(specs)) => (head.unseen_raw(&specs[c], h.model), Predictor::Physics),
+            _ => (
+                raw_at(h.raw, h.info, ch.tau, Extrapolation::Refuse),
+                Predictor::Interpolation,
+            ),
+        };
+        let raw = raw.map_err(|e| e.under(&format!("holdout `{}`", ch.label)))?;
         let vol = volumes_with(h.model, raw.clone(), &full.geometry.volume, h.world)?
             .index_axis(Axis(0), 0)
             .to_owned();
@@ -84,6 +113,7 @@ pub fn predict_holdout(
             tau: ch.tau,
             coordinate: ch.coordinate.value(),
             unit: ch.coordinate.unit().to_string(),
+            predictor,
             volume,
             proj_psnr,
             proj_ssim,

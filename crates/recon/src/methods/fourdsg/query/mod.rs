@@ -8,7 +8,7 @@ pub mod basis;
 pub mod holdout;
 
 pub use basis::{BASIS_FILE, BasisModel};
-pub use holdout::{Holdout, HoldoutScore, predict_holdout};
+pub use holdout::{Holdout, HoldoutScore, Predictor, predict_holdout};
 
 use crate::gaussians::io::{LoadedModel, ModelInfo, load_model};
 use crate::gaussians::volume::{render_views, volumes_with};
