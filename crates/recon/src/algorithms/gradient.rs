@@ -105,12 +105,12 @@ impl Gradient {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
 
+    /// `n` uniform values in [−1, 1), seeded.
     fn random(n: usize, seed: u64) -> Vec<f32> {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        (0..n).map(|_| rng.random_range(-1.0..1.0)).collect()
+        prism_domain::testing::random([1, 1, n], seed)
+            .into_iter()
+            .collect()
     }
 
     #[test]

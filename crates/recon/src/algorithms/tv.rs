@@ -245,16 +245,18 @@ pub fn objective(
         .collect();
     let reg: f64 = (0..grad.voxels())
         .into_par_iter()
-        .map(|i| {
-            let mut group = vec![0.0f32; 3 * nc];
-            for (c, (x, ch)) in slices.iter().zip(channels).enumerate() {
-                let g = grad.at(x, i);
-                for d in 0..3 {
-                    group[3 * c + d] = ch.weight * g[d];
+        .map_init(
+            || vec![0.0f32; 3 * nc],
+            |group, i| {
+                for (c, (x, ch)) in slices.iter().zip(channels).enumerate() {
+                    let g = grad.at(x, i);
+                    for d in 0..3 {
+                        group[3 * c + d] = ch.weight * g[d];
+                    }
                 }
-            }
-            norm(&group, opts.coupling)
-        })
+                norm(group, opts.coupling)
+            },
+        )
         .sum();
     Ok(data + opts.weight * reg)
 }

@@ -1,7 +1,8 @@
 //! The channels' gains: each channel's mean line integral over the channels', the ratio of its
 //! attenuation to the channel mean (over a full set of views the mean line integral is the
 //! object's integrated attenuation). Stage 1 divides by them to start the joint fit from one
-//! common image per view, and stage 2 starts its curve model from them.
+//! common image per view, stage 2 starts its curve model from them, and the classic `tv` method
+//! weighs each channel's total variation by its inverse.
 
 use ndarray::Axis;
 use prism_domain::scene::Scene;

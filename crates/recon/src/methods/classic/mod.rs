@@ -62,13 +62,16 @@ pub fn reconstruct_channel(
 
 /// Reconstruct every channel (`projections[c]` with every view of `geometry`, `views[c]` its
 /// training views) with `method: tv`, the channels coupled by the regulariser. A channel's
-/// regulariser weight is the inverse of its gain, its mean training line integral over the
-/// channels' mean (1 for a channel of mean zero), so channels of different contrast count alike.
+/// regulariser weight is the inverse of its gain `gains[c]` (its mean training line integral
+/// over the channels' mean, [`channel_ratios`]), so channels of different contrast count alike.
+///
+/// [`channel_ratios`]: crate::gaussians::spectral::gains::channel_ratios
 pub fn reconstruct_jointly(
     config: &ClassicConfig,
     geometry: &Geometry,
     projections: &[ArrayView3<f32>],
     views: &[Vec<usize>],
+    gains: &[f64],
     progress: &mut dyn FnMut(usize),
 ) -> Result<Vec<Array3<f32>>> {
     config.validate()?;
@@ -84,23 +87,14 @@ pub fn reconstruct_jointly(
         projectors.push(Joseph::new(&geometry.with_views(v))?);
         data.push(b.select(Axis(0), v));
     }
-    let means: Vec<f64> = data
-        .iter()
-        .map(|b| b.iter().map(|&v| v as f64).sum::<f64>() / b.len().max(1) as f64)
-        .collect();
-    let overall = means.iter().sum::<f64>() / means.len().max(1) as f64;
     let channels: Vec<ChannelData> = projectors
         .iter()
         .zip(&data)
-        .zip(&means)
-        .map(|((a, b), &m)| ChannelData {
+        .zip(gains)
+        .map(|((a, b), &g)| ChannelData {
             projector: a,
             projections: b.view(),
-            weight: if m > 0.0 && overall > 0.0 {
-                (overall / m) as f32
-            } else {
-                1.0
-            },
+            weight: (1.0 / g) as f32,
         })
         .collect();
     tv(&channels, &config.tv_options(), progress)

@@ -129,16 +129,8 @@ fn the_head_gradient_matches_finite_differences() {
     }
 }
 
-/// The start keeps stage 1's fit: the basis columns sum to the structural density, and the
-/// channels' mean reference attenuation is that density too (every column's channel-mean
-/// coefficient is 1).
-#[test]
-fn the_start_keeps_the_structural_density() {
-    let dev = cpu_device();
-    let cfg = BasisConfig::default();
-    let head = BasisHead::new(&cfg, "stage2", &specs(), &WORLD, &dev).unwrap();
-    let u = [-3.0f32, 0.0, 0.7, 4.0];
-    let raw = head.initial_raw(&u);
+/// Gaussians on a line, each with its raw basis columns (3 per Gaussian) from `raw`.
+fn basis_model(raw: &[f32], dev: &Device) -> GaussianModel {
     let mut host = HostGaussians::empty(3);
     for (i, g) in raw.chunks(3).enumerate() {
         host.means.extend([i as f32 * 0.1, 0.0, 0.0]);
@@ -150,7 +142,20 @@ fn the_start_keeps_the_structural_density() {
         min: 0.001,
         max: 0.5,
     };
-    let model = GaussianModel::new(&host, bounds, &dev);
+    GaussianModel::new(&host, bounds, dev)
+}
+
+/// The start keeps stage 1's fit: the basis columns sum to the structural density, and the
+/// channels' mean reference attenuation is that density too (every column's channel-mean
+/// coefficient is 1).
+#[test]
+fn the_start_keeps_the_structural_density() {
+    let dev = cpu_device();
+    let cfg = BasisConfig::default();
+    let head = BasisHead::new(&cfg, "stage2", &specs(), &WORLD, &dev).unwrap();
+    let u = [-3.0f32, 0.0, 0.7, 4.0];
+    let raw = head.initial_raw(&u);
+    let model = basis_model(&raw, &dev);
     let ch = host_values(&head.channel_raw(&model));
     for (i, &u) in u.iter().enumerate() {
         let d = softplus(u as f64);
@@ -184,18 +189,7 @@ fn an_unseen_channel_follows_the_materials_attenuation() {
     let cfg = BasisConfig::default();
     let head = BasisHead::new(&cfg, "stage2", &specs(), &WORLD, &dev).unwrap();
     let raw = [0.3f32, -1.0, 2.0, 1.5, -0.2, 0.1];
-    let mut host = HostGaussians::empty(3);
-    for (i, g) in raw.chunks(3).enumerate() {
-        host.means.extend([i as f32 * 0.1, 0.0, 0.0]);
-        host.scales.extend([0.0; 3]);
-        host.rotations.extend([1.0, 0.0, 0.0, 0.0]);
-        host.densities.extend_from_slice(g);
-    }
-    let bounds = ScaleBounds {
-        min: 0.001,
-        max: 0.5,
-    };
-    let model = GaussianModel::new(&host, bounds, &dev);
+    let model = basis_model(&raw, &dev);
     let act = |r: f32| softplus(r as f64);
     let trained = host_values(&head.channel_raw(&model));
     for (c, spec) in specs().iter().enumerate() {
