@@ -11,6 +11,7 @@
 //! * channels are ordered along the spectral axis (strictly increasing
 //!   [`SpectralCoordinate::value`]) and carry τ ∈ [0, 1], the coordinate normalised over the scene.
 
+mod gains;
 pub(crate) mod io;
 pub(crate) mod npy;
 mod r2;

@@ -9,8 +9,6 @@ use crate::{Error, Result};
 use prism_render::{ProjectOptions, ProjectionMode};
 use serde::{Deserialize, Serialize};
 
-pub use super::spectral::config::{BasisConfig, Freeze, Stage2Config};
-
 /// The geometry stage's configuration: a set of 3D Gaussians initialised from FDK and fitted to
 /// projections. Lengths are in the normalised world (the volume's largest edge spans 2),
 /// densities in units of the FDK's 99.9th percentile. Every field has a default

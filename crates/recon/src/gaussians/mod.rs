@@ -11,7 +11,6 @@ pub mod finish;
 pub mod host;
 pub mod io;
 pub mod model;
-pub mod spectral;
 pub mod state;
 pub mod train;
 pub mod volume;

@@ -393,7 +393,7 @@ fn four_dsg_trains_the_curve_model_and_predicts_a_held_out_channel() {
 fn a_basis_run_predicts_a_held_out_channel_by_the_physics() {
     // Water and bone from 40 and 70 keV; 55 keV is formed from the materials' attenuation at
     // 55 keV (not interpolated), and holdout.json says so.
-    use crate::gaussians::spectral::BasisConfig;
+    use crate::methods::fourdsg::stage2::config::BasisConfig;
     use prism_domain::physics::Material;
     let scene = three_channel_scene();
     let dev = cpu_device();

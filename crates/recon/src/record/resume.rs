@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 /// A network and its optimiser, as Burn's records (exact): a curve model, or NAF's field.
 #[derive(Clone, Debug, PartialEq)]
-pub(crate) struct NetState {
+pub struct NetState {
     pub net: Vec<u8>,
     pub optim: Vec<u8>,
 }
@@ -67,13 +67,13 @@ impl NetState {
     }
 
     /// Add the records to `out` as `<prefix>net` and `<prefix>optim`.
-    pub fn add_to(&self, prefix: &str, out: &mut Tensors) {
+    pub(crate) fn add_to(&self, prefix: &str, out: &mut Tensors) {
         out.u8(format!("{prefix}net"), self.net.clone());
         out.u8(format!("{prefix}optim"), self.optim.clone());
     }
 
     /// The records [`NetState::add_to`] stored under `prefix`.
-    pub fn read(f: &TensorFile, prefix: &str) -> Result<Self> {
+    pub(crate) fn read(f: &TensorFile, prefix: &str) -> Result<Self> {
         Ok(NetState {
             net: f.bytes(&format!("{prefix}net"))?,
             optim: f.bytes(&format!("{prefix}optim"))?,

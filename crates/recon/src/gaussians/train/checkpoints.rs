@@ -27,10 +27,10 @@
 //! whether a curve model is stored, summary, log) and `current` (the same for the stage in
 //! progress, with its index, trainer state and running sums).
 
+use super::head::DensityNet;
 use super::trainer::{Cursor, Trainer, TrainerState};
 use super::{Progress, Stage, StageReport};
 use crate::gaussians::GaussianModel;
-use crate::gaussians::spectral::CurveFit;
 use crate::gaussians::state::{ModelMeta, ModelState};
 use crate::record::log::SavedLog;
 use crate::record::tensors::{TensorFile, Tensors, json_meta};
@@ -188,7 +188,7 @@ impl<'a> Checkpoints<'a> {
         index: usize,
         stage: &Stage,
         model: &mut GaussianModel,
-        curve: Option<&mut CurveFit>,
+        curve: Option<&mut dyn DensityNet>,
     ) -> Result<Option<(StageReport, SavedLog)>> {
         let Some((done, _)) = &self.resume else {
             return Ok(None);
@@ -210,7 +210,7 @@ impl<'a> Checkpoints<'a> {
         index: usize,
         stage: &Stage,
         model: &mut GaussianModel,
-        curve: Option<&mut CurveFit>,
+        curve: Option<&mut dyn DensityNet>,
     ) -> Result<Option<(TrainerState, Progress, SavedLog)>> {
         let Some((done, current)) = &mut self.resume else {
             return Ok(None);
@@ -254,7 +254,7 @@ impl<'a> Checkpoints<'a> {
         &self,
         at: &Snapshot,
         model: &mut GaussianModel,
-        curve: Option<&mut CurveFit>,
+        curve: Option<&mut dyn DensityNet>,
         prefix: &str,
     ) -> Result<()> {
         let device: Device = model.device();
@@ -271,7 +271,7 @@ impl<'a> Checkpoints<'a> {
         }
         *model = at.model.to_model(&device);
         match (curve, &at.curve) {
-            (Some(c), Some(s)) => s.restore(&mut c.net, &mut c.optim, self.file.path(), prefix),
+            (Some(c), Some(s)) => c.restore(s, self.file.path(), prefix),
             (None, None) => Ok(()),
             (c, _) => Err(Error::field(
                 self.file.path(),
@@ -294,7 +294,7 @@ impl<'a> Checkpoints<'a> {
         &mut self,
         stage: &Stage,
         model: &GaussianModel,
-        curve: Option<&CurveFit>,
+        curve: Option<&dyn DensityNet>,
         report: &StageReport,
         log: SavedLog,
     ) -> Result<()> {
@@ -303,7 +303,7 @@ impl<'a> Checkpoints<'a> {
                 stage: stage.name.to_string(),
                 channel: stage.channel.to_string(),
                 model: ModelState::of(model),
-                curve: curve.map(|c| NetState::of(&c.net, &c.optim)).transpose()?,
+                curve: curve.map(|c| c.state()).transpose()?,
                 log,
             },
             report: report.clone(),
@@ -373,10 +373,7 @@ impl<'a> Checkpoints<'a> {
                 stage: stage.name.to_string(),
                 channel: stage.channel.to_string(),
                 model: ModelState::of(trainer.model()),
-                curve: trainer
-                    .curve()
-                    .map(|c| NetState::of(&c.net, &c.optim))
-                    .transpose()?,
+                curve: trainer.curve().map(|c| c.state()).transpose()?,
                 log,
             },
             trainer: trainer.state(),

@@ -11,6 +11,7 @@ pub mod checkpoints;
 pub mod data;
 pub mod densify;
 pub mod evaluator;
+pub mod head;
 pub mod loss;
 pub mod settings;
 pub mod trainer;
@@ -19,13 +20,13 @@ pub use checkpoints::Checkpoints;
 pub use data::{Supervision, View};
 pub use densify::DensifyCounts;
 pub use evaluator::Evaluator;
+pub use head::{ChannelMix, DensityNet};
 pub use settings::{ChannelMap, Stage};
 pub use trainer::{DensifyStep, StepPlan, StepStats, Trainer, TrainerState};
 
 use crate::gaussians::GaussianModel;
 use crate::gaussians::adam::LogLinear;
 use crate::gaussians::config::{DensifyConfig, LearningRates};
-use crate::gaussians::spectral::CurveFit;
 use crate::record::log::{LogRecord, LossTerms, RunLog};
 use crate::{Error, Result};
 use prism_domain::observe::{Level, Observer};
@@ -100,7 +101,7 @@ impl<'a> Journal<'a> {
         sup: &Supervision,
         eval: Option<&Evaluator>,
         stage: &Stage,
-        mut curve: Option<&mut CurveFit>,
+        mut curve: Option<&mut dyn DensityNet>,
     ) -> Result<()> {
         let index = self.trained;
         self.trained += 1;
@@ -186,11 +187,11 @@ impl Schedule<'_> {
     }
 }
 
-/// The score of a model in training (through its curve model or basis head in stage 2).
+/// The score of a model in training (through its density network or channel mix, if any).
 fn score(e: &Evaluator, t: &Trainer, stage: &Stage) -> Result<(f64, f64)> {
     match (t.curve(), stage.map) {
         (Some(c), _) => e.score_raw(t.model(), c.raw_densities(t.model())?),
-        (None, ChannelMap::Basis(h)) => e.score_raw(t.model(), h.channel_raw(t.model())),
+        (None, ChannelMap::Mix(h)) => e.score_raw(t.model(), h.channel_raw(t.model())),
         (None, ChannelMap::Direct) => e.score(t.model()),
     }
 }
@@ -212,13 +213,13 @@ fn train(
     sup: &Supervision,
     eval: Option<&Evaluator>,
     stage: &Stage,
-    curve: Option<&mut CurveFit>,
+    curve: Option<&mut dyn DensityNet>,
 ) -> Result<StageReport> {
     let StageStart { index, resumed } = at;
     let schedule = Schedule {
         iterations: stage.iterations,
         lr: stage.lr,
-        network: curve.as_ref().map(|c| c.lr),
+        network: curve.as_ref().map(|c| c.lr()),
         densify: stage.densification(),
         eval_every: stage.eval_every,
     };

@@ -1,18 +1,16 @@
 //! What a training stage is told: its iterations, which groups learn, the schedule's rates, the
 //! loss weights, densification, evaluation and seed.
 
+use super::head::ChannelMix;
 use crate::Result;
-use crate::gaussians::config::{
-    DensifyConfig, GeometryConfig, LearningRates, LossConfig, Stage2Config,
-};
-use crate::gaussians::spectral::BasisHead;
+use crate::gaussians::config::{DensifyConfig, GeometryConfig, LearningRates, LossConfig};
 use crate::gaussians::{Learnable, World};
 use prism_domain::geometry::VolumeGrid;
 use prism_render::ProjectOptions;
 
 /// The settings of one training stage.
 pub struct Stage<'a> {
-    /// Name in the log (`r2gs`, `geometry`, `densities`, and `gscnet` or `mlp` for stage 2).
+    /// Name in the log (`r2gs`, `geometry`, and 4D-SG's `densities`, `basis`, `gscnet`, `mlp`).
     pub name: &'a str,
     /// What is fitted, for the log (`structural`, a channel label, `all`).
     pub channel: &'a str,
@@ -36,12 +34,12 @@ pub struct Stage<'a> {
 /// How a stage's rendered density columns become the channels it supervises.
 #[derive(Clone, Copy, Default)]
 pub enum ChannelMap<'a> {
-    /// Each column is a channel (or, with a curve model, the curve's channels).
+    /// Each column is a channel (or, with a density network, the network's channels).
     #[default]
     Direct,
-    /// The basis-material head (4D-SG's joint stage 1, and stage 2 with `stage2.basis`): the
-    /// columns are basis materials and the head forms the channels from their projections.
-    Basis(&'a BasisHead),
+    /// A channel mix forms the channels from the columns' projections (4D-SG's basis-material
+    /// head: the columns are basis materials).
+    Mix(&'a dyn ChannelMix),
 }
 
 impl ChannelMap<'_> {
@@ -49,7 +47,7 @@ impl ChannelMap<'_> {
     pub fn columns(&self) -> Option<(usize, usize)> {
         match self {
             ChannelMap::Direct => None,
-            ChannelMap::Basis(h) => Some((h.channels(), h.basis().materials().len())),
+            ChannelMap::Mix(h) => Some(h.shape()),
         }
     }
 
@@ -57,7 +55,7 @@ impl ChannelMap<'_> {
     pub fn project(&self, rendered: burn::tensor::Tensor<4>) -> burn::tensor::Tensor<4> {
         match self {
             ChannelMap::Direct => rendered,
-            ChannelMap::Basis(h) => h.project(rendered),
+            ChannelMap::Mix(h) => h.project(rendered),
         }
     }
 }
@@ -86,24 +84,6 @@ impl<'a> Stage<'a> {
             world,
             seed: config.seed,
             map: ChannelMap::Direct,
-        }
-    }
-
-    /// 4D-SG's spectral stage (stage 2) of the geometry stage `config` named `name`:
-    /// `stage2`'s iterations and freezing, no densification, its own seed, every channel fitted.
-    pub fn spectral(
-        config: &'a GeometryConfig,
-        stage2: &Stage2Config,
-        name: &'a str,
-        grid: &'a VolumeGrid,
-        world: &'a World,
-    ) -> Stage<'a> {
-        Stage {
-            iterations: stage2.iterations,
-            learn: stage2.freeze.learnable(),
-            densify: None,
-            seed: config.seed.wrapping_add(1),
-            ..Stage::geometry(config, name, "all", grid, world)
         }
     }
 

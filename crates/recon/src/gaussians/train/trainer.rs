@@ -3,27 +3,26 @@
 //! A step draws one training view (without replacement until every view was used, then
 //! reshuffled; seeded), renders every density column supervised at that view in one projection,
 //! minimises `L1 + λ_dssim·(1 − SSIM) + λ_tv·TV(32³ patch)` (terms with weight 0 are not
-//! computed; stage 2 adds `λ_curve·L_curve`), and takes one Adam step of each learnable group at
-//! the rates the [`StepPlan`] gives. When densification is on, the view-space gradient
-//! statistics are accumulated and, when the plan says so, clone/split/prune runs (after that
-//! step's Adam update; upstream skips the update at those iterations). What happens when is the
-//! driver's business ([`super::train`]); the trainer only does it.
+//! computed; a density network adds its regulariser, 4D-SG's `λ_curve·L_curve`), and takes one
+//! Adam step of each learnable group at the rates the [`StepPlan`] gives. When densification is
+//! on, the view-space gradient statistics are accumulated and, when the plan says so,
+//! clone/split/prune runs (after that step's Adam update; upstream skips the update at those
+//! iterations). What happens when is the driver's business ([`super::train`]); the trainer only
+//! does it.
 
 use super::Timing;
 use super::data::Supervision;
 use super::densify::{DensifyCounts, densify_and_prune};
+use super::head::DensityNet;
 use super::loss::{SsimWindow, l1, total_variation};
 use super::settings::Stage;
 use crate::gaussians::GaussianModel;
 use crate::gaussians::config::Rates;
 use crate::gaussians::model::softplus;
-use crate::gaussians::spectral::CurveFit;
 use crate::record::log::LossTerms;
 use crate::{Error, Result};
-use burn::optim::GradientsParams;
 use burn::tensor::Tensor;
 use prism_domain::geometry::VolumeGrid;
-use prism_gscnet::curve_regularizer;
 use prism_render::{VoxelGrid, VoxelizeOptions, project, screen_grad_norm, screen_probe, voxelize};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -38,7 +37,7 @@ pub struct Cursor {
 
 /// A trainer's own state between two steps: the position in its random stream (seeded by the
 /// stage's seed), the views left in the current pass and, while densifying, the view-space
-/// gradient statistics `(sum, count)` per Gaussian. With the model (and curve model) it
+/// gradient statistics `(sum, count)` per Gaussian. With the model (and density network) it
 /// continues a stage exactly.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TrainerState {
@@ -68,7 +67,7 @@ pub struct StepPlan {
     pub iteration: usize,
     /// Learning rates of the Gaussian parameter groups.
     pub rates: Rates,
-    /// Learning rate of the curve model (stage 2).
+    /// Learning rate of the density network, if the stage trains one.
     pub network_lr: f64,
     pub densify: DensifyStep,
 }
@@ -85,7 +84,7 @@ pub struct StepStats {
 /// A model being trained on one stage's supervision.
 pub struct Trainer<'a> {
     model: &'a mut GaussianModel,
-    curve: Option<&'a mut CurveFit>,
+    curve: Option<&'a mut dyn DensityNet>,
     sup: &'a Supervision,
     stage: &'a Stage<'a>,
     window: SsimWindow,
@@ -102,19 +101,19 @@ pub struct Trainer<'a> {
 }
 
 impl<'a> Trainer<'a> {
-    /// A trainer of `model` (and, in stage 2, of the curve model `curve`) on `sup`.
+    /// A trainer of `model` (and of the density network `curve`, if any) on `sup`.
     pub fn new(
         model: &'a mut GaussianModel,
         sup: &'a Supervision,
         stage: &'a Stage<'a>,
-        curve: Option<&'a mut CurveFit>,
+        curve: Option<&'a mut dyn DensityNet>,
     ) -> Result<Self> {
         stage.validate()?;
         let Some(first) = sup.views.first() else {
             return Err(Error::invalid("views", "no training view to fit"));
         };
         let (columns, needs) = match (&curve, stage.map.columns()) {
-            (Some(c), _) => (c.net.channels(), 1),
+            (Some(c), _) => (c.channels(), 1),
             (None, Some(map)) => map,
             (None, None) => (model.channels(), model.channels()),
         };
@@ -152,8 +151,8 @@ impl<'a> Trainer<'a> {
         self.model
     }
 
-    /// The curve model, in stage 2.
-    pub fn curve(&self) -> Option<&CurveFit> {
+    /// The density network, if the stage trains one.
+    pub fn curve(&self) -> Option<&dyn DensityNet> {
         self.curve.as_deref()
     }
 
@@ -248,8 +247,7 @@ impl<'a> Trainer<'a> {
         let delta_u = match &self.curve {
             Some(c) => {
                 let u = act.leaves[3].clone();
-                let k = u.dims()[0];
-                let du = c.net.forward(u.clone().reshape([k]), c.tau.clone())?;
+                let du = c.offsets(u.clone())?;
                 act.gaussians.densities = softplus(u + du.clone());
                 Some(du)
             }
@@ -285,11 +283,10 @@ impl<'a> Trainer<'a> {
             None
         };
         let l_curve = match (&self.curve, delta_u) {
-            (Some(c), Some(du)) if c.lambda_curve > 0.0 => {
-                let l = curve_regularizer(du)?;
-                total = total.clone() + l.clone() * c.lambda_curve;
-                Some(l)
-            }
+            (Some(c), Some(du)) => c.regulariser(du)?.map(|(l, weight)| {
+                total = total.clone() + l.clone() * weight;
+                l
+            }),
             _ => None,
         };
         let t2 = Instant::now();
@@ -342,8 +339,7 @@ impl<'a> Trainer<'a> {
         }
         let probe_grad = probe.as_ref().and_then(|p| p.grad(&grads));
         if let Some(c) = self.curve.as_deref_mut() {
-            let gp = GradientsParams::from_grads(grads, &c.net);
-            c.net = c.optim.step(plan.network_lr, c.net.clone(), gp);
+            c.step(grads, plan.network_lr);
         }
         let t4 = Instant::now();
 

@@ -65,7 +65,7 @@ pub fn reconstruct_channel(
 /// regulariser weight is the inverse of its gain `gains[c]` (its mean training line integral
 /// over the channels' mean, [`channel_ratios`]), so channels of different contrast count alike.
 ///
-/// [`channel_ratios`]: crate::gaussians::spectral::gains::channel_ratios
+/// [`channel_ratios`]: prism_domain::scene::Scene::channel_ratios
 pub fn reconstruct_jointly(
     config: &ClassicConfig,
     geometry: &Geometry,

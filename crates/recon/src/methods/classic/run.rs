@@ -4,7 +4,6 @@
 use super::{ClassicConfig, ClassicMethod, reconstruct_channel, reconstruct_jointly};
 use crate::Result;
 use crate::evaluate::{Metrics, Reconstruction, TestProjector, metrics};
-use crate::gaussians::spectral::gains::channel_ratios;
 use crate::record::RunDir;
 use crate::setup::{RunOptions, Setup};
 use prism_domain::scene::Scene;
@@ -36,7 +35,7 @@ pub(crate) fn run(
             &scene.geometry,
             &projections,
             &setup.views,
-            &channel_ratios(scene, scene.train_views()),
+            &scene.channel_ratios(scene.train_views()),
             &mut |i| observer.progress(i as u64, ""),
         )?;
         for (ch, vol) in scene.channels.iter().zip(&volumes) {

@@ -12,9 +12,9 @@
 use super::config::{FourDsgConfig, FourDsgMethod};
 use super::run::{shared_geometry, spectral};
 use crate::evaluate::Metrics;
-use crate::gaussians::config::Freeze;
 use crate::gaussians::finish::{Outputs, finish};
 use crate::gaussians::train::Journal;
+use crate::methods::fourdsg::stage2::config::Freeze;
 use crate::record::RunDir;
 use crate::setup::{RunOptions, Setup};
 use crate::{Error, Result};

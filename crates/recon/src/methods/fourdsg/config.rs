@@ -5,7 +5,7 @@
 
 use crate::gaussians::GeometryConfig;
 use crate::gaussians::config::flat;
-use crate::gaussians::spectral::config::{BasisConfig, Stage2Config};
+use crate::methods::fourdsg::stage2::config::{BasisConfig, Stage2Config};
 use crate::{Error, Result};
 use prism_domain::scene::Scene;
 use serde::{Deserialize, Serialize};
@@ -186,7 +186,7 @@ struct MethodKey {
 /// Stage 1's joint fit (`structural: joint`; YAML `joint:`, every field optional): while the
 /// shared geometry is fitted to every channel's projections, each Gaussian carries one density
 /// per basis material and every channel is formed from them by the physics
-/// ([`crate::gaussians::spectral::BasisHead`]). Two materials of different effective atomic number span,
+/// ([`crate::methods::fourdsg::heads::BasisHead`]). Two materials of different effective atomic number span,
 /// between absorption edges, the photoelectric and Compton terms of every body material's
 /// μ(E), so the channels constrain one another without a per-channel density; at the end of the
 /// stage the densities become their channel mean, the common density stage 2 starts from.

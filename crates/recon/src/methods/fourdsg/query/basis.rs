@@ -3,16 +3,16 @@
 //! images at any energy of the attenuation table (10–150 keV).
 //!
 //! Format `prism-basis/1`: the f32 tensor `densities_raw [K, B]` (the Gaussians' raw basis
-//! columns, same Gaussians and order as the model file; see [`crate::gaussians::spectral::basis`] for their
+//! columns, same Gaussians and order as the model file; see [`crate::methods::fourdsg::heads::basis`] for their
 //! units) and the string metadata `format` and `basis` (JSON: `materials`, `reference_mu`
 //! (μ̂_b, mm⁻¹) and `channel_kev` (each trained channel's centre energy, keV)).
 
 use crate::device::{host_values, upload};
 use crate::gaussians::io::{LoadedModel, load_model};
 use crate::gaussians::model::GaussianModel;
-use crate::gaussians::spectral::BasisHead;
-use crate::gaussians::spectral::basis::mix_raw;
 use crate::gaussians::volume::volumes_with;
+use crate::methods::fourdsg::heads::BasisHead;
+use crate::methods::fourdsg::heads::basis::mix_raw;
 use crate::record::tensors::{TensorFile, Tensors};
 use crate::{Error, Result};
 use burn::tensor::{Device, Tensor};

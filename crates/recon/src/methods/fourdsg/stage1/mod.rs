@@ -13,13 +13,12 @@ pub mod checkpoint;
 
 use super::config::{FourDsgConfig, StructuralSource};
 use crate::device::upload;
-use crate::gaussians::spectral::BasisHead;
-use crate::gaussians::spectral::gains::channel_ratios;
 use crate::gaussians::train::Evaluator;
 use crate::gaussians::train::data::{Measured, image};
 use crate::gaussians::train::{ChannelMap, Journal, Stage, Supervision};
 use crate::gaussians::{GaussianModel, World};
 use crate::init::initial_model;
+use crate::methods::fourdsg::heads::BasisHead;
 use crate::{Error, Result};
 use burn::tensor::Device;
 use ndarray::{Array3, Axis, s};
@@ -125,7 +124,7 @@ pub fn targets(config: &FourDsgConfig, scene: &Scene) -> Result<Targets> {
 }
 
 /// Every training view with a measured channel, each supervising its channels; the FDK start
-/// at each view is the mean of its channels, each divided by its gain ([`channel_ratios`]: the
+/// at each view is the mean of its channels, each divided by its gain ([`Scene::channel_ratios`]: the
 /// channel's mean line integral over the channels').
 fn joint_targets(scene: &Scene) -> Result<Targets> {
     let measured = Measured::of(scene);
@@ -135,7 +134,7 @@ fn joint_targets(scene: &Scene) -> Result<Targets> {
             "no training view has a measured channel",
         ));
     }
-    let gains = channel_ratios(scene, &measured.views);
+    let gains = scene.channel_ratios(&measured.views);
     let pixels = scene.geometry.detector.rows * scene.geometry.detector.cols;
     let start = measured
         .views
@@ -232,7 +231,7 @@ pub fn train_shared_geometry(
         },
     });
     let (channel, map) = match &head {
-        Some(h) => ("joint", ChannelMap::Basis(h)),
+        Some(h) => ("joint", ChannelMap::Mix(h)),
         None => ("structural", ChannelMap::Direct),
     };
     let stage = Stage {

@@ -3,7 +3,7 @@
 use super::*;
 use crate::device::upload;
 use crate::device::{cpu_device, host_values};
-use crate::gaussians::spectral::gains::channel_ratios;
+use crate::gaussians::train::ChannelMix;
 use crate::methods::fourdsg::FourDsgMethod;
 use crate::pipeline::gaussian_tests::tiny;
 use crate::pipeline::tests::{run_into, scene};
@@ -38,7 +38,7 @@ fn gains_count_only_the_views_a_channel_was_measured_at() {
     for v in (0..24).step_by(3) {
         sc.projections.slice_mut(s![1, v, .., ..]).fill(0.0);
     }
-    let r = channel_ratios(&sc, sc.train_views());
+    let r = sc.channel_ratios(sc.train_views());
     assert!((r[0] - 4.0 / 3.0).abs() < 1e-12, "{r:?}");
     assert!((r[1] - 2.0 / 3.0).abs() < 1e-12, "{r:?}");
 }
@@ -103,7 +103,7 @@ fn the_joint_loss_is_the_sum_of_the_per_channel_losses_where_they_exist() {
     for (i, view) in sup.views.iter().enumerate().step_by(5) {
         let v = t.views[i];
         assert_eq!(sc.available_channels(v), vec![v % 2]);
-        let mut img = ChannelMap::Basis(&head).project(render(&model, view.camera));
+        let mut img = ChannelMap::Mix(&head).project(render(&model, view.camera));
         if let Some(c) = &view.columns {
             img = img.select(1, c.clone());
         }

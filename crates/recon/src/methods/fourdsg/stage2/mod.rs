@@ -9,25 +9,29 @@
 //! baseline started from the channels' mean attenuation ratios, so stage 2 does not start with
 //! every channel at the channel-mean density.
 //!
-//! With `stage2.basis` the spectral head is the basis-material head instead ([`crate::gaussians::spectral::basis`]): the
+//! With `stage2.basis` the spectral head is the basis-material head instead ([`crate::methods::fourdsg::heads::basis`]): the
 //! Gaussians carry one density per basis material and the channels are formed by the physics.
+
+pub mod config;
 
 use super::config::{FourDsgConfig, FourDsgMethod};
 use crate::Result;
 use crate::device::upload;
+use crate::gaussians::config::GeometryConfig;
 use crate::gaussians::finish::{SharedModel, Trained};
 use crate::gaussians::host::{inverse_softplus, softplus};
-use crate::gaussians::spectral::gains::channel_ratios;
-use crate::gaussians::spectral::{BasisHead, CurveFit};
 use crate::gaussians::train::Evaluator;
 use crate::gaussians::train::data::Measured;
-use crate::gaussians::train::{ChannelMap, Journal, Stage, Supervision};
+use crate::gaussians::train::{ChannelMap, ChannelMix, DensityNet, Journal, Stage, Supervision};
 use crate::gaussians::{GaussianModel, Learnable, World};
+use crate::methods::fourdsg::heads::{BasisHead, CurveFit};
 use crate::methods::fourdsg::stage1::SharedGeometry;
 use burn::optim::AdamConfig;
 use burn::tensor::{Device, Tensor};
+use config::Stage2Config;
 use ndarray::Axis;
 use prism_domain::decompose::channel_specs;
+use prism_domain::geometry::VolumeGrid;
 use prism_domain::observe::Level;
 use prism_domain::scene::Scene;
 use prism_gscnet::SpectralGrid;
@@ -86,7 +90,7 @@ pub fn train_spectral(
             .map(|c| r.index_axis(Axis(0), c).to_owned())
             .collect(),
     });
-    let ratios = channel_ratios(scene, &sviews);
+    let ratios = scene.channel_ratios(&sviews);
     let mut head = None;
     let raw = match (config.method, &config.spectral.stage2.basis) {
         (FourDsgMethod::Full, Some(cfg)) => {
@@ -102,8 +106,8 @@ pub fn train_spectral(
             let start = h.initial_raw(&model.to_host().densities);
             model.set_densities(upload(start, cfg.materials.len(), device));
             let stage = Stage {
-                map: ChannelMap::Basis(&h),
-                ..Stage::spectral(
+                map: ChannelMap::Mix(&h),
+                ..spectral_stage(
                     &config.geometry,
                     &config.spectral.stage2,
                     "basis",
@@ -135,14 +139,20 @@ pub fn train_spectral(
                 lambda_curve: s2.lambda_curve,
                 lr: s2.lr_network,
             };
-            let stage = Stage::spectral(
+            let stage = spectral_stage(
                 &config.geometry,
                 s2,
                 s2.curve_model.kind.name(),
                 &geometry.volume,
                 &world,
             );
-            journal.train(&mut model, &sup, eval.as_ref(), &stage, Some(&mut fit))?;
+            journal.train(
+                &mut model,
+                &sup,
+                eval.as_ref(),
+                &stage,
+                Some(&mut fit as &mut dyn DensityNet),
+            )?;
             fit.raw_densities(&model)?
         }
         _ => {
@@ -168,7 +178,7 @@ pub fn train_spectral(
             let stage = Stage {
                 iterations: config.spectral.density_iterations,
                 learn: Learnable::DENSITY,
-                ..Stage::spectral(
+                ..spectral_stage(
                     &config.geometry,
                     &config.spectral.stage2,
                     "densities",
@@ -188,6 +198,24 @@ pub fn train_spectral(
     })
 }
 
+/// The spectral stage of the geometry stage `config` named `name`: `stage2`'s iterations and
+/// freezing, no densification, its own seed, every channel fitted.
+fn spectral_stage<'a>(
+    config: &'a GeometryConfig,
+    stage2: &Stage2Config,
+    name: &'a str,
+    grid: &'a VolumeGrid,
+    world: &'a World,
+) -> Stage<'a> {
+    Stage {
+        iterations: stage2.iterations,
+        learn: stage2.freeze.learnable(),
+        densify: None,
+        seed: config.seed.wrapping_add(1),
+        ..Stage::geometry(config, name, "all", grid, world)
+    }
+}
+
 /// The finite values of `v`, ascending.
 fn sorted_finite(mut v: Vec<f32>) -> Vec<f32> {
     v.retain(|x| x.is_finite());
@@ -203,7 +231,7 @@ fn quantile(sorted: &[f32], q: f64) -> f32 {
 
 /// Raw-density offsets b [M] that turn the structural densities into each channel's, for the
 /// curve model's baseline: softplus(ū + b_m) = r_m·softplus(ū) at the median ū of the ascending
-/// raw densities `sorted` (`ratios` from [`channel_ratios`]).
+/// raw densities `sorted` (`ratios` from [`Scene::channel_ratios`]).
 fn spectral_baseline(sorted: &[f32], ratios: &[f64]) -> Vec<f32> {
     let u = quantile(sorted, 0.5) as f64;
     let a = softplus(u);

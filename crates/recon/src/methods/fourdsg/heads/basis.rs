@@ -17,9 +17,10 @@
 use crate::Result;
 use crate::device::{host_values, upload};
 use crate::gaussians::World;
-use crate::gaussians::config::BasisConfig;
 use crate::gaussians::host::{inverse_softplus, softplus};
 use crate::gaussians::model::GaussianModel;
+use crate::gaussians::train::ChannelMix;
+use crate::methods::fourdsg::stage2::config::BasisConfig;
 use burn::tensor::{Device, Tensor, s};
 use prism_domain::decompose::{Basis, Decomposition};
 use prism_domain::physics::ChannelSpec;
@@ -123,41 +124,6 @@ impl BasisHead {
         self.segments.len()
     }
 
-    /// Channel line integrals `[V, M, rows, cols]` (normalised) from the rendered basis columns
-    /// `[V, B, rows, cols]` (normalised path integrals of v_b).
-    pub fn project(&self, basis: Tensor<4>) -> Tensor<4> {
-        let [v, b, rows, cols] = basis.dims();
-        let p = v * rows * cols;
-        let y = basis
-            .permute([0, 2, 3, 1])
-            .reshape([p, b])
-            .matmul(self.nodes.clone());
-        let m = self.segments.len();
-        // Every channel linear (one node each): the nodes are the channels.
-        let channels = if y.dims()[1] == m {
-            y
-        } else {
-            let k = self.k as f32;
-            let out: Vec<Tensor<2>> = self
-                .segments
-                .iter()
-                .map(|r| {
-                    let y = y.clone().slice(s![.., r.clone()]);
-                    if r.len() == 1 {
-                        return y;
-                    }
-                    // −(1/k)·ln Σ_n exp(ln w_n − k·y_n), shifted by the (constant) largest
-                    // exponent.
-                    let z = y * (-k) + self.log_weights.clone().slice(s![.., r.clone()]);
-                    let top = z.clone().max_dim(1).detach();
-                    ((z - top.clone()).exp().sum_dim(1).log() + top) * (-1.0 / k)
-                })
-                .collect();
-            Tensor::cat(out, 1)
-        };
-        channels.reshape([v, rows, cols, m]).permute([0, 3, 1, 2])
-    }
-
     /// The start of stage 2 from the stage-1 raw densities `[K]`: raw basis columns `[K, B]`
     /// (see the module docs).
     pub fn initial_raw(&self, structural: &[f32]) -> Vec<f32> {
@@ -171,20 +137,8 @@ impl BasisHead {
             .collect()
     }
 
-    /// Raw per-channel densities `[K, M]` of a model whose density columns are the raw basis
-    /// columns: each channel's reference attenuation `Σ_b v_b·μ̄_cb/μ̂_b` (normalised), through
-    /// the inverse softplus. The channels' volumes are these Gaussians voxelized.
-    pub fn channel_raw(&self, model: &GaussianModel) -> Tensor<2> {
-        let coef = &self.effective;
-        mix_raw(&model.densities.value, |v, out| {
-            for row in coef {
-                out.push(row.iter().zip(v).map(|(a, v)| a * v).sum());
-            }
-        })
-    }
-
     /// Raw densities `[K, 1]` of a channel the head was not trained on (a held-out one), from
-    /// the same physics as [`BasisHead::channel_raw`]: its reference attenuation
+    /// the same physics as [`ChannelMix::channel_raw`]: its reference attenuation
     /// `Σ_b v_b·μ̄_b(spec)/μ̂_b` (normalised), with μ̄_b(spec) the effective attenuation of
     /// material b in that channel ([`ChannelSpec::effective_mu`]). Errors name `spec`'s field.
     pub fn unseen_raw(&self, spec: &ChannelSpec, model: &GaussianModel) -> Result<Tensor<2>> {
@@ -216,6 +170,60 @@ impl BasisHead {
     /// The energy each channel is centred on, keV ([`ChannelSpec::mean_kev`]).
     pub fn channel_kev(&self) -> &[f64] {
         &self.channel_kev
+    }
+}
+
+/// The head as the training loop sees it: basis columns in, channels out.
+impl ChannelMix for BasisHead {
+    fn shape(&self) -> (usize, usize) {
+        (self.channels(), self.basis.materials().len())
+    }
+
+    /// Channel line integrals `[V, M, rows, cols]` (normalised) from the rendered basis columns
+    /// `[V, B, rows, cols]` (normalised path integrals of v_b).
+    fn project(&self, rendered: Tensor<4>) -> Tensor<4> {
+        let [v, b, rows, cols] = rendered.dims();
+        let p = v * rows * cols;
+        let y = rendered
+            .permute([0, 2, 3, 1])
+            .reshape([p, b])
+            .matmul(self.nodes.clone());
+        let m = self.segments.len();
+        // Every channel linear (one node each): the nodes are the channels.
+        let channels = if y.dims()[1] == m {
+            y
+        } else {
+            let k = self.k as f32;
+            let out: Vec<Tensor<2>> = self
+                .segments
+                .iter()
+                .map(|r| {
+                    let y = y.clone().slice(s![.., r.clone()]);
+                    if r.len() == 1 {
+                        return y;
+                    }
+                    // −(1/k)·ln Σ_n exp(ln w_n − k·y_n), shifted by the (constant) largest
+                    // exponent.
+                    let z = y * (-k) + self.log_weights.clone().slice(s![.., r.clone()]);
+                    let top = z.clone().max_dim(1).detach();
+                    ((z - top.clone()).exp().sum_dim(1).log() + top) * (-1.0 / k)
+                })
+                .collect();
+            Tensor::cat(out, 1)
+        };
+        channels.reshape([v, rows, cols, m]).permute([0, 3, 1, 2])
+    }
+
+    /// Raw per-channel densities `[K, M]` of a model whose density columns are the raw basis
+    /// columns: each channel's reference attenuation `Σ_b v_b·μ̄_cb/μ̂_b` (normalised), through
+    /// the inverse softplus. The channels' volumes are these Gaussians voxelized.
+    fn channel_raw(&self, model: &GaussianModel) -> Tensor<2> {
+        let coef = &self.effective;
+        mix_raw(&model.densities.value, |v, out| {
+            for row in coef {
+                out.push(row.iter().zip(v).map(|(a, v)| a * v).sum());
+            }
+        })
     }
 }
 

@@ -68,7 +68,7 @@ pub struct Stage2Config {
     /// fixed form left the occupied raw densities in a fifth of û's range; measured on
     /// phantom-3mono 40.37 dB against 36.22 dB).
     pub condition_on_stage1: bool,
-    /// The basis-material head in place of the curve model (`crate::gaussians::spectral::basis`); absent:
+    /// The basis-material head in place of the curve model (`crate::methods::fourdsg::heads::basis`); absent:
     /// the curve model.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub basis: Option<BasisConfig>,
