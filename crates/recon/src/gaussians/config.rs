@@ -249,6 +249,32 @@ pub struct LossConfig {
     pub lambda_tv: f64,
     /// Edge of the TV patch in voxels of the reconstruction grid (upstream 32).
     pub tv_patch: usize,
+    /// How the L1 term weighs each pixel: `none` (upstream, default) or `counts` for
+    /// photon-limited data ([`DataWeighting`]). Left out of a resolved config when `none`, so
+    /// configs written before the option existed still describe their runs.
+    #[serde(skip_serializing_if = "DataWeighting::is_none")]
+    pub weighting: DataWeighting,
+}
+
+/// How the data term weighs a pixel's residual (YAML `loss.weighting`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DataWeighting {
+    /// Every pixel alike (R²-Gaussian's L1).
+    #[default]
+    None,
+    /// Photon statistics: a log-transformed count `b = −ln(I/I₀)` has standard deviation
+    /// `≈ e^{b/2}/√I₀` (Poisson), so each pixel's absolute residual is weighted by `1/σ ∝
+    /// e^{−b/2}` (the L1 term then is a Laplace likelihood with the noise's own scale),
+    /// normalised to mean 1 over each channel's pixels at the stage's views; no I₀ needed.
+    /// SSIM and TV are left as they are.
+    Counts,
+}
+
+impl DataWeighting {
+    fn is_none(&self) -> bool {
+        *self == DataWeighting::None
+    }
 }
 
 impl Default for LossConfig {
@@ -257,6 +283,7 @@ impl Default for LossConfig {
             lambda_dssim: 0.25,
             lambda_tv: 0.05,
             tv_patch: 32,
+            weighting: DataWeighting::None,
         }
     }
 }

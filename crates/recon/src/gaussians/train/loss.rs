@@ -2,6 +2,8 @@
 //! window σ = 1.5, zero padding, C₁ = 0.01², C₂ = 0.03², on raw projection values) and the
 //! total variation of a voxelized patch.
 
+use super::data::Supervision;
+use crate::device::host_values;
 use burn::tensor::module::conv2d;
 use burn::tensor::ops::ConvOptions;
 use burn::tensor::{Device, Tensor, TensorData};
@@ -16,6 +18,98 @@ const C2: f64 = 0.03 * 0.03;
 /// Mean absolute difference.
 pub fn l1(pred: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
     (pred - target).abs().mean()
+}
+
+/// Mean absolute difference, each pixel's weighted by `weights` (same shape).
+pub fn weighted_l1(pred: Tensor<4>, target: Tensor<4>, weights: Tensor<4>) -> Tensor<1> {
+    ((pred - target).abs() * weights).mean()
+}
+
+/// The photon-statistics weights of every view of `sup` ([`DataWeighting::Counts`]): `e^{−b/2}`
+/// of each pixel's line integral `b` (the normalised target divided by `factor`, the world's
+/// projection factor), normalised to mean 1 over each channel's pixels in all views; a pixel
+/// whose target is not finite weighs 0. One `[1, n, rows, cols]` tensor per view, on the
+/// targets' device.
+///
+/// [`DataWeighting::Counts`]: crate::gaussians::config::DataWeighting::Counts
+pub fn count_weights(sup: &Supervision, factor: f32) -> Vec<Tensor<4>> {
+    let per_view: Vec<(Vec<f32>, Vec<usize>)> = sup
+        .views
+        .iter()
+        .map(|v| {
+            let n = v.target.dims()[1];
+            let channels = match &v.columns {
+                Some(c) => c
+                    .to_data()
+                    .convert::<i64>()
+                    .try_to_vec::<i64>()
+                    .expect("column indices")
+                    .into_iter()
+                    .map(|i| i as usize)
+                    .collect(),
+                None => (0..n).collect(),
+            };
+            (host_values(&v.target), channels)
+        })
+        .collect();
+    let columns = sup.columns.max(
+        per_view
+            .iter()
+            .flat_map(|(_, c)| c.iter().map(|&i| i + 1))
+            .max()
+            .unwrap_or(0),
+    );
+    // Each channel's least line integral: e^{−(b − lo)/2} ≤ 1 cannot overflow.
+    let mut lo = vec![f32::INFINITY; columns];
+    for (t, channels) in &per_view {
+        let px = t.len() / channels.len().max(1);
+        for (j, &c) in channels.iter().enumerate() {
+            for &x in t[j * px..(j + 1) * px].iter().filter(|x| x.is_finite()) {
+                lo[c] = lo[c].min(x / factor);
+            }
+        }
+    }
+    let weigh = |x: f32, c: usize| {
+        if x.is_finite() {
+            ((lo[c] - x / factor) as f64 / 2.0).exp()
+        } else {
+            0.0
+        }
+    };
+    let (mut sum, mut count) = (vec![0.0f64; columns], vec![0usize; columns]);
+    for (t, channels) in &per_view {
+        let px = t.len() / channels.len().max(1);
+        for (j, &c) in channels.iter().enumerate() {
+            sum[c] += t[j * px..(j + 1) * px]
+                .iter()
+                .map(|&x| weigh(x, c))
+                .sum::<f64>();
+            count[c] += px;
+        }
+    }
+    let mean: Vec<f64> = (0..columns)
+        .map(|c| {
+            let m = sum[c] / count[c].max(1) as f64;
+            if m > 0.0 && m.is_finite() { m } else { 1.0 }
+        })
+        .collect();
+    sup.views
+        .iter()
+        .zip(&per_view)
+        .map(|(v, (t, channels))| {
+            let px = t.len() / channels.len().max(1);
+            let w: Vec<f32> = t
+                .iter()
+                .enumerate()
+                .map(|(i, &x)| {
+                    let c = channels[i / px];
+                    (weigh(x, c) / mean[c]) as f32
+                })
+                .collect();
+            let dims = v.target.dims();
+            Tensor::from_data(TensorData::new(w, dims), &v.target.device())
+        })
+        .collect()
 }
 
 /// The separable SSIM window as two conv2d kernels (`[1, 1, 11, 1]` and `[1, 1, 1, 11]`).
@@ -188,6 +282,57 @@ mod tests {
                 g[i]
             );
         }
+    }
+
+    #[test]
+    fn count_weights_are_inverse_noise_scales_with_mean_one_per_channel() {
+        use super::super::data::View;
+        use burn::tensor::Int;
+        use prism_domain::geometry::Beam;
+        let dev = device();
+        let g = prism_domain::testing::geometry(Beam::Cone, 8, 2, 2, false);
+        let f = 2.5f32;
+        // `[1, n, 1, 2]` targets of line integrals `b` (normalised: b·f); channel 0 is missing
+        // at the second view.
+        let view = |b: &[f32], columns: Option<Vec<i64>>| View {
+            camera: g.camera(0),
+            target: Tensor::from_data(
+                TensorData::new(b.iter().map(|x| x * f).collect(), [1, b.len() / 2, 1, 2]),
+                &dev,
+            ),
+            columns: columns.map(|c| {
+                let n = c.len();
+                Tensor::<1, Int>::from_data(TensorData::new(c, [n]), &dev)
+            }),
+        };
+        let sup = Supervision {
+            views: vec![
+                view(&[0.0, 2.0, 1.0, 1.0], None),
+                view(&[3.0, f32::NAN], Some(vec![1])),
+            ],
+            columns: 2,
+        };
+        let w: Vec<Vec<f32>> = count_weights(&sup, f).iter().map(host_values).collect();
+        // σ ∝ e^{b/2}: weights ∝ e^{−b/2}, mean 1 over each channel's pixels (the NaN weighs 0
+        // and counts).
+        let e = |b: f64| (-b / 2.0).exp();
+        let m0 = (e(0.0) + e(2.0)) / 2.0;
+        let m1 = (2.0 * e(1.0) + e(3.0)) / 4.0;
+        let want = [
+            vec![e(0.0) / m0, e(2.0) / m0, e(1.0) / m1, e(1.0) / m1],
+            vec![e(3.0) / m1, 0.0],
+        ];
+        for (got, want) in w.iter().zip(&want) {
+            assert_eq!(got.len(), want.len());
+            for (g, w) in got.iter().zip(want) {
+                assert!((*g as f64 - w).abs() < 1e-6, "{got:?} vs {want:?}");
+            }
+        }
+        let t = sup.views[0].target.clone();
+        let l: f32 =
+            weighted_l1(t.clone() + 1.0, t, count_weights(&sup, f)[0].clone()).into_scalar();
+        let mean = want[0].iter().sum::<f64>() / 4.0;
+        assert!((l as f64 - mean).abs() < 1e-6, "{l} vs {mean}");
     }
 
     #[test]

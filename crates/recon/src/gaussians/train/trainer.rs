@@ -14,10 +14,10 @@ use super::Timing;
 use super::data::Supervision;
 use super::densify::{DensifyCounts, densify_and_prune};
 use super::head::DensityNet;
-use super::loss::{SsimWindow, l1, total_variation};
+use super::loss::{SsimWindow, count_weights, l1, total_variation, weighted_l1};
 use super::settings::Stage;
 use crate::gaussians::GaussianModel;
-use crate::gaussians::config::Rates;
+use crate::gaussians::config::{DataWeighting, Rates};
 use crate::gaussians::model::softplus;
 use crate::record::log::LossTerms;
 use crate::{Error, Result};
@@ -98,6 +98,8 @@ pub struct Trainer<'a> {
     stats: Option<GradStats>,
     /// Pixel → NDC gradient units (R²-Gaussian's densification threshold is in NDC).
     ndc: f32,
+    /// Each view's pixel weights in the L1 term, when the loss weighs them.
+    weights: Option<Vec<Tensor<4>>>,
 }
 
 impl<'a> Trainer<'a> {
@@ -131,7 +133,14 @@ impl<'a> Trainer<'a> {
         let stats = stage
             .densification()
             .map(|_| GradStats::new(model.len(), &device));
+        let weights = match stage.loss.weighting {
+            DataWeighting::None => None,
+            DataWeighting::Counts => {
+                Some(count_weights(sup, stage.world.projection_factor() as f32))
+            }
+        };
         Ok(Trainer {
+            weights,
             window: SsimWindow::new(&device.autodiff()),
             rng: ChaCha8Rng::seed_from_u64(stage.seed),
             order: Vec::new(),
@@ -240,7 +249,8 @@ impl<'a> Trainer<'a> {
             self.order = (0..sup.views.len()).collect();
             self.order.shuffle(&mut self.rng);
         }
-        let view = &sup.views[self.order.pop().expect("refilled")];
+        let index = self.order.pop().expect("refilled");
+        let view = &sup.views[index];
 
         let t0 = Instant::now();
         let mut act = self.model.activate(Some(stage.learn));
@@ -266,7 +276,10 @@ impl<'a> Trainer<'a> {
         }
         let t1 = Instant::now();
 
-        let l_1 = l1(img.clone(), view.target.clone());
+        let l_1 = match &self.weights {
+            Some(w) => weighted_l1(img.clone(), view.target.clone(), w[index].clone()),
+            None => l1(img.clone(), view.target.clone()),
+        };
         let mut total = l_1.clone();
         let dssim = (stage.loss.lambda_dssim > 0.0).then(|| {
             let d = self.window.ssim(img.clone(), view.target.clone()).neg() + 1.0;
