@@ -182,10 +182,9 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
 }
 
 /// The shipped suites plan from the repository alone: the CPU suite at 13 views of 64³ (its noise
-/// study sharing the table's head cells; 20 and 50 views for the curve-model study), its NAF
-/// companion, the paper
-/// suite at 50 views of 256³; `--study` marks
-/// the other cells as not selected, and an unknown study is refused with the known ones.
+/// study sharing the table's head cells, its rates study the table's 4D-SG cells; 20 and 50 views
+/// for the curve-model study), its NAF companion, the paper suite at 50 views of 256³; `--study`
+/// marks the other cells as not selected, and an unknown study is refused with the known ones.
 #[test]
 fn the_shipped_suites_plan_in_the_papers_regime() {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
@@ -199,7 +198,8 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/head-v13-shipped-s0  (64³, 13 views, 3 channels)  to run\n")
             && t.contains("scenes/ph8-v13-shipped-s0  (64³, 13 views, 8 channels)")
             && t.contains("scenes/head-v50-shipped-s0  (64³, 50 views, 3 channels)")
-            && t.contains("53 run cells:")
+            && t.contains("59 run cells:")
+            && t.contains("runs/abdomen-v13-shipped-s0/4dsg-r2rates  to run\n")
             && t.contains("runs/head-v13-i0-1e4-s0/4dsg  to run\n")
             && t.contains("runs/ph8-v13-shipped-s0/4dsg-quarter  to run\n")
             && !t.contains("naf"),
