@@ -33,12 +33,13 @@ pub fn weighted_l1(pred: Tensor<4>, target: Tensor<4>, weights: Tensor<4>) -> Te
 ///
 /// [`DataWeighting::Counts`]: crate::gaussians::config::DataWeighting::Counts
 pub fn count_weights(sup: &Supervision, factor: f32) -> Vec<Tensor<4>> {
-    let per_view: Vec<(Vec<f32>, Vec<usize>)> = sup
+    // Per view, its pixels as (channel, line integral b).
+    let views: Vec<Vec<(usize, f32)>> = sup
         .views
         .iter()
         .map(|v| {
-            let n = v.target.dims()[1];
-            let channels = match &v.columns {
+            let b = host_values(&v.target);
+            let channels: Vec<usize> = match &v.columns {
                 Some(c) => c
                     .to_data()
                     .convert::<i64>()
@@ -47,67 +48,51 @@ pub fn count_weights(sup: &Supervision, factor: f32) -> Vec<Tensor<4>> {
                     .into_iter()
                     .map(|i| i as usize)
                     .collect(),
-                None => (0..n).collect(),
+                None => (0..v.target.dims()[1]).collect(),
             };
-            (host_values(&v.target), channels)
+            let px = b.len() / channels.len().max(1);
+            b.iter()
+                .enumerate()
+                .map(|(i, &x)| (channels[i / px], x / factor))
+                .collect()
         })
         .collect();
-    let columns = sup.columns.max(
-        per_view
-            .iter()
-            .flat_map(|(_, c)| c.iter().map(|&i| i + 1))
-            .max()
-            .unwrap_or(0),
-    );
     // Each channel's least line integral: e^{−(b − lo)/2} ≤ 1 cannot overflow.
-    let mut lo = vec![f32::INFINITY; columns];
-    for (t, channels) in &per_view {
-        let px = t.len() / channels.len().max(1);
-        for (j, &c) in channels.iter().enumerate() {
-            for &x in t[j * px..(j + 1) * px].iter().filter(|x| x.is_finite()) {
-                lo[c] = lo[c].min(x / factor);
-            }
-        }
+    let mut lo = vec![f32::INFINITY; sup.columns];
+    for &(c, b) in views.iter().flatten().filter(|(_, b)| b.is_finite()) {
+        lo[c] = lo[c].min(b);
     }
-    let weigh = |x: f32, c: usize| {
-        if x.is_finite() {
-            ((lo[c] - x / factor) as f64 / 2.0).exp()
+    let weigh = |(c, b): (usize, f32)| {
+        if b.is_finite() {
+            ((lo[c] - b) as f64 / 2.0).exp()
         } else {
             0.0
         }
     };
-    let (mut sum, mut count) = (vec![0.0f64; columns], vec![0usize; columns]);
-    for (t, channels) in &per_view {
-        let px = t.len() / channels.len().max(1);
-        for (j, &c) in channels.iter().enumerate() {
-            sum[c] += t[j * px..(j + 1) * px]
-                .iter()
-                .map(|&x| weigh(x, c))
-                .sum::<f64>();
-            count[c] += px;
-        }
+    let (mut sum, mut count) = (vec![0.0f64; sup.columns], vec![0usize; sup.columns]);
+    // Summed image by image (a view's images are its channels').
+    for img in views.iter().flat_map(|v| v.chunk_by(|a, b| a.0 == b.0)) {
+        let c = img[0].0;
+        sum[c] += img.iter().map(|&p| weigh(p)).sum::<f64>();
+        count[c] += img.len();
     }
-    let mean: Vec<f64> = (0..columns)
-        .map(|c| {
-            let m = sum[c] / count[c].max(1) as f64;
+    let mean: Vec<f64> = sum
+        .iter()
+        .zip(&count)
+        .map(|(&s, &n)| {
+            let m = s / n.max(1) as f64;
             if m > 0.0 && m.is_finite() { m } else { 1.0 }
         })
         .collect();
     sup.views
         .iter()
-        .zip(&per_view)
-        .map(|(v, (t, channels))| {
-            let px = t.len() / channels.len().max(1);
-            let w: Vec<f32> = t
+        .zip(&views)
+        .map(|(v, pixels)| {
+            let w: Vec<f32> = pixels
                 .iter()
-                .enumerate()
-                .map(|(i, &x)| {
-                    let c = channels[i / px];
-                    (weigh(x, c) / mean[c]) as f32
-                })
+                .map(|&p| (weigh(p) / mean[p.0]) as f32)
                 .collect();
-            let dims = v.target.dims();
-            Tensor::from_data(TensorData::new(w, dims), &v.target.device())
+            Tensor::from_data(TensorData::new(w, v.target.dims()), &v.target.device())
         })
         .collect()
 }
