@@ -183,7 +183,8 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
 
 /// The shipped suites plan from the repository alone: the CPU suite at 13 views of 64³ (its noise
 /// study sharing the table's head cells, its rates study the table's 4D-SG cells; 20 and 50 views
-/// for the curve-model study), its NAF companion, the paper suite at 50 views of 256³; `--study`
+/// for the curve-model study), its NAF companion, the paper suite at 50 views of 256³, the real-data
+/// suite's imported scans; `--study`
 /// marks the other cells as not selected, and an unknown study is refused with the known ones.
 #[test]
 fn the_shipped_suites_plan_in_the_papers_regime() {
@@ -272,6 +273,19 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/abdomen-v50-shipped-s0  (256³, 50 views, 8 channels)")
             && t.contains("36 run cells:")
             && t.contains("runs/chest-v50-shipped-s0/naf  to run\n"),
+        "{t}"
+    );
+    // The real-data suite: the bird scan imported (fan beam, one 512 × 512 slice), cut to 60 views
+    // on Cueva et al.'s geometry and to 30, 60 and 120 on the scan's own.
+    let real = repo.join("configs/suites/real.yaml");
+    let (ok, t) = prism(&["experiment", path(&real), "-o", path(&out), "--dry-run"]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("4 scene cells:")
+            && t.contains("scenes/bird-dtv-v60-shipped-s0  (512×512×1, 60 views, 3 channels)  to run\n      importing needs ~")
+            && t.contains("scenes/bird-v120-shipped-s0  (512×512×1, 120 views, 3 channels)")
+            && t.contains("34 run cells:")
+            && t.contains("runs/bird-v30-shipped-s0/4dsg  to run\n"),
         "{t}"
     );
 }

@@ -2,7 +2,8 @@
 //! fields, Poisson noise) written as `.npy` (u16), a TIFF stack (the flat fields) and a raw
 //! big-endian file (the dark field) → `prism import` → the scene's line integrals to the noise
 //! level, 50 of the 360 views picked, a full-view FDK reference; then 4D-SG trains on it.
-//! The counts are simulated, not measured (no real projection set ships with the repository).
+//! The counts are simulated: the measured scan that ships (`data/real/bird`) is line integrals.
+//! A fan-beam MATLAB v7.3 sinogram with per-channel reference methods is the second test.
 
 mod common;
 
@@ -114,7 +115,7 @@ fn counts_with_flat_and_dark_fields_import_to_the_scenes_line_integrals() {
     assert!(
         ok && t.contains(&format!(
             "projections of the full scan (3 channels × {VIEWS} views × {rows}×{cols})"
-        )) && t.contains("full-view FDK")
+        )) && t.contains("full-view reference of one channel")
             && t.contains("estimated peak"),
         "{t}"
     );
@@ -209,4 +210,70 @@ fn counts_with_flat_and_dark_fields_import_to_the_scenes_line_integrals() {
     let run = dir.path().join("run");
     let (ok, t) = prism(&["recon", path(&recon), "-s", path(&out), "-o", path(&run)]);
     assert!(ok && run.join("metrics.json").is_file(), "{t}");
+}
+
+#[test]
+fn a_fan_beam_matlab_sinogram_imports_with_each_channels_reference_method() {
+    // The MATLAB v7.3 fixture: a 3-view × 4-column sinogram, value 100·view + column, stored
+    // column-major (x:theta). Two channels read it; the first is referenced by FDK (its own
+    // `reference`), the second by the import's shared reference, TV started from the FDK.
+    let dir = tempfile::tempdir().unwrap();
+    let mat = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../crates/domain/tests/fixtures/hdf5/matlab73.mat");
+    std::fs::write(dir.path().join("fdk.yaml"), "method: fdk\n").unwrap();
+    std::fs::write(
+        dir.path().join("tv.yaml"),
+        "method: tv\nstart: fdk\niterations: 5\nnonneg: true\ntv: { weight: 0.1, coupling: channel }\n",
+    )
+    .unwrap();
+    let source = format!(
+        "{{ path: {}, dataset: /CtData/sinogram, axes: \"x:theta\" }}",
+        mat.display()
+    );
+    let config = dir.path().join("scan.yaml");
+    std::fs::write(
+        &config,
+        format!(
+            "name: fan\ngeometry:\n  fan: {{ dso: 50.0, dsd: 80.0, cols: 4, pitch: 2.0, nx: 6, ny: 6, dx: 1.5, dy: 1.5 }}\n\
+             angles: {{ count: 3 }}\nchannels:\n\
+             \x20 - {{ label: a, coordinate: {{ kind: tube_voltage, kvp: 50 }}, line_integrals: {source}, reference: fdk.yaml }}\n\
+             \x20 - {{ label: b, coordinate: {{ kind: tube_voltage, kvp: 80 }}, line_integrals: {source} }}\n\
+             select: {{ views: 3, reference: {{ recon: tv.yaml }} }}\n"
+        ),
+    )
+    .unwrap();
+    let out = dir.path().join("scene");
+    let (ok, t) = prism(&[
+        "import",
+        path(&config),
+        "-o",
+        path(&out),
+        "--set",
+        "select.views=2",
+    ]);
+    assert!(ok, "{t}");
+    assert!(t.contains("references: full-view fdk.yaml, tv.yaml"), "{t}");
+    let scene = Scene::load(&out).unwrap();
+    let g = &scene.geometry;
+    assert_eq!((g.detector.rows, g.volume.nz, scene.n_views()), (1, 1, 2));
+    assert_eq!(scene.provenance.overrides, ["select.views=2"]);
+    // Views 0 and 1 of 3 (⌊i·3/2⌋), both channels, in the stored order.
+    for c in 0..2 {
+        for (k, v) in [0usize, 1].into_iter().enumerate() {
+            for col in 0..4 {
+                let want = (100 * v + col) as f32;
+                assert_eq!(scene.projections[[c, k, 0, col]], want);
+            }
+        }
+    }
+    let refs = scene.references.as_ref().expect("references");
+    let (fdk, tv) = (
+        refs.index_axis(ndarray::Axis(0), 0),
+        refs.index_axis(ndarray::Axis(0), 1),
+    );
+    assert!(tv.iter().all(|&x| x >= 0.0), "non-negative TV");
+    assert!(
+        fdk.iter().zip(tv.iter()).any(|(a, b)| a != b),
+        "FDK and TV references differ"
+    );
 }

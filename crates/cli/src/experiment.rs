@@ -7,7 +7,6 @@ use crate::args::{DeviceArg, SetArgs};
 use crate::progress::Bars;
 use anyhow::{Context, bail};
 use prism_domain::observe::{Level, Observer};
-use prism_domain::simulate::SimulateConfig;
 use prism_experiment::execute::{
     CellState, ExecOptions, Selection, record_failures, run_plan, run_state, scene_state,
 };
@@ -315,17 +314,15 @@ fn dry_run(
     };
     println!("{} scene cells:", plan.scenes.len());
     for (i, c) in plan.scenes.iter().enumerate() {
-        let peak = SimulateConfig::load_with(&c.config, &c.overrides)
-            .and_then(|cfg| cfg.footprint())
-            .map_err(|e| e.in_file(&c.config))?
-            .total();
+        let peak = c.footprint().map_err(|e| e.in_file(&c.config))?;
         println!(
-            "  [{i}] scenes/{}  ({}³, {} views, {} channels)  {}\n      simulating needs ~{}",
+            "  [{i}] scenes/{}  ({}, {} views, {} channels)  {}\n      {} needs ~{}",
             c.key,
-            c.n,
+            c.grid_label(),
             c.views,
             c.channels,
             mark(selection.has_scene(i), state(scene_state(plan, out, i)?)),
+            if c.import { "importing" } else { "simulating" },
             prism_domain::memory::human(peak),
         );
     }

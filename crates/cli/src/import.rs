@@ -1,13 +1,12 @@
 //! `prism import <import.yaml> -o <scene_dir>`: measured projections (counts with flat and dark
 //! fields, or line integrals; `.npy`, TIFF, raw) of one or several acquisitions → a scene with
 //! the selected training and test views and, by default, the full-view FDK of every channel as
-//! its reference. See `docs/import.md` and `prism_domain::import`.
+//! its reference. See `docs/import.md` and `prism_recon::methods::classic::import`.
 
 use crate::progress::Bars;
 use anyhow::Context;
-use prism_domain::import::{ImportConfig, ReferenceKind, assemble, footprint};
-use prism_domain::observe::{Level, Observer};
-use prism_recon::methods::classic::{ClassicConfig, ClassicMethod, reconstruct_channel};
+use prism_domain::import::{ImportConfig, footprint};
+use prism_recon::methods::classic::import::{import_scene, reference_configs};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -19,13 +18,15 @@ pub struct Args {
     out: PathBuf,
     #[command(flatten)]
     memory: crate::args::MemoryArgs,
+    #[command(flatten)]
+    set: crate::args::SetArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(&args.config)
         .with_context(|| format!("reading {}", args.config.display()))?;
-    let config: ImportConfig =
-        prism_domain::yaml::parse_with(&text, &args.config, &Default::default())?;
+    let overrides = args.set.overrides()?;
+    let config: ImportConfig = prism_domain::yaml::parse_with(&text, &args.config, &overrides)?;
     let base = args.config.parent().unwrap_or(std::path::Path::new("."));
     let footprint = footprint(&config, base).map_err(|e| e.in_file(&args.config))?;
     let what = format!("importing {}", args.config.display());
@@ -33,57 +34,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     let bars = Bars::new();
-    bars.phase("reading and converting the images", 0);
-    let full = assemble(&config, base, &text).map_err(|e| e.in_file(&args.config))?;
-    for (ch, n) in full.scene.channels.iter().zip(&full.raised) {
-        if *n > 0 {
-            bars.note(
-                Level::Warning,
-                &format!(
-                    "channel `{}`: {n} pixels had dark-corrected counts below min_counts = {} and were raised to it",
-                    ch.label, config.min_counts
-                ),
-            );
-        }
-    }
-    let mut scene = full.scene;
-    let n = scene.n_views();
-    if config.select.reference == ReferenceKind::Fdk {
-        let fdk = ClassicConfig {
-            method: ClassicMethod::Fdk,
-            ..ClassicConfig::default()
-        };
-        bars.phase("full-view FDK references", scene.n_channels() as u64);
-        let volumes = (0..scene.n_channels())
-            .map(|c| {
-                let views: Vec<usize> = (0..n).filter(|&v| scene.availability[[v, c]]).collect();
-                let v = reconstruct_channel(
-                    &fdk,
-                    &scene.geometry,
-                    scene.channel_projections(c),
-                    &views,
-                    &mut |_| {},
-                );
-                bars.progress(c as u64 + 1, &scene.channels[c].label);
-                v
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        scene = scene.with_references(volumes)?;
-    }
-    let (train, test) = config.pick_views(n).map_err(|e| e.in_file(&args.config))?;
-    let scene = scene.with_views(&train, &test)?;
+    let mut scene =
+        import_scene(&config, base, &text, &bars).map_err(|e| e.in_file(&args.config))?;
+    scene.provenance.overrides = overrides.texts();
     scene.save(&args.out)?;
     bars.finish();
+    let references = match reference_configs(&config, base)? {
+        Some(r) => {
+            let mut from: Vec<&str> = r.iter().map(|(_, f)| f.as_str()).collect();
+            from.dedup();
+            format!("references: full-view {}", from.join(", "))
+        }
+        None => "no references".into(),
+    };
+    let scan = config.angles_rad(base)?.len();
     eprintln!(
-        "{}: {} channels, {} training + {} test views of {n} ({}), → {}",
+        "{}: {} channels, {} training + {} test views of {scan} ({references}) → {}",
         scene.name,
         scene.n_channels(),
-        train.len(),
-        test.len(),
-        match config.select.reference {
-            ReferenceKind::Fdk => "references: full-view FDK",
-            ReferenceKind::None => "no references",
-        },
+        scene.split.train.len(),
+        scene.split.test.len(),
         args.out.display()
     );
     Ok(())

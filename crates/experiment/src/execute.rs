@@ -9,15 +9,17 @@
 //! finished cells, and refuses (or with `force`, redoes) cells whose inputs changed since. A cell
 //! that fails is recorded and the others go on.
 
-use crate::plan::{CellKind, Plan};
+use crate::plan::{CellKind, Plan, SCENES};
 use crate::suite::EvaluationSpec;
 use crate::{Error, Result};
+use prism_domain::import::{self, ImportConfig};
 use prism_domain::observe::{Level, Observer};
 use prism_domain::scene::Scene;
 use prism_domain::simulate::{SimulateConfig, simulate};
 use prism_recon::MethodConfig;
 use prism_recon::device::DeviceChoice;
 use prism_recon::evaluate::Evaluation;
+use prism_recon::methods::classic::import::{import_full, select_views};
 use prism_recon::methods::fourdsg::FourDsgMethod;
 use prism_recon::methods::fourdsg::ablation::ablate;
 use prism_recon::pipeline::{footprint, run};
@@ -123,7 +125,7 @@ pub fn scene_state(plan: &Plan, out: &Path, i: usize) -> Result<CellState> {
         .unwrap_or_default();
     if prov["config"].as_str() != Some(read_text(&cell.config)?.as_str()) {
         return Ok(CellState::Changed(format!(
-            "{} changed since the scene was simulated",
+            "{} changed since the scene was made",
             cell.config.display()
         )));
     }
@@ -200,21 +202,70 @@ pub fn simulate_scene(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) 
         }
         _ => {}
     }
-    options.observer.note(
-        Level::Info,
-        &format!("scene {}: simulating {}", cell.key, cell.config.display()),
-    );
-    let config = SimulateConfig::load_with(&cell.config, &cell.overrides)?;
-    config
-        .footprint()
-        .and_then(|f| f.check(&format!("scene cell `{}`", cell.key), options.allow_memory))
-        .map_err(|e| e.in_file(&cell.config))?;
-    let mut scene = simulate(&config, Some(&cell.config), options.observer)?;
+    let mut scene = if cell.import {
+        let text = read_text(&cell.config)?;
+        let config: ImportConfig =
+            prism_domain::yaml::parse_with(&text, &cell.config, &cell.overrides)?;
+        let full = full_scan(plan, out, i, &config, &text, options)?;
+        select_views(&config, &full).map_err(|e| e.in_file(&cell.config))?
+    } else {
+        options.observer.note(
+            Level::Info,
+            &format!("scene {}: simulating {}", cell.key, cell.config.display()),
+        );
+        let config = SimulateConfig::load_with(&cell.config, &cell.overrides)?;
+        config
+            .footprint()
+            .and_then(|f| f.check(&format!("scene cell `{}`", cell.key), options.allow_memory))
+            .map_err(|e| e.in_file(&cell.config))?;
+        simulate(&config, Some(&cell.config), options.observer)?
+    };
     scene.provenance.overrides = cell.overrides.texts();
     let dir = plan.scene_dir(out, i);
     create_parent(&dir)?;
     scene.save(&dir)?;
     Ok(true)
+}
+
+/// The whole measured scan of import scene cell `i` with its references, imported once into
+/// `scenes/<scene>-full/` and shared by the scene's cells at every view count (its overrides
+/// other than `select.*` recorded, and compared, like a scene's).
+fn full_scan(
+    plan: &Plan,
+    out: &Path,
+    i: usize,
+    config: &ImportConfig,
+    text: &str,
+    options: &ExecOptions,
+) -> Result<Scene> {
+    let cell = &plan.scenes[i];
+    let dir = out.join(SCENES).join(format!("{}-full", cell.scene));
+    let overrides: Vec<String> = cell
+        .overrides
+        .texts()
+        .into_iter()
+        .filter(|o| !o.starts_with("select."))
+        .collect();
+    if let Ok(scene) = Scene::load(&dir)
+        && scene.provenance.config == text
+        && scene.provenance.overrides == overrides
+    {
+        return Ok(scene);
+    }
+    options.observer.note(
+        Level::Info,
+        &format!("scene {}: importing {}", cell.scene, cell.config.display()),
+    );
+    let base = cell.config.parent().unwrap_or(Path::new("."));
+    import::footprint(config, base)
+        .and_then(|f| f.check(&format!("scene cell `{}`", cell.key), options.allow_memory))
+        .map_err(|e| e.in_file(&cell.config))?;
+    let mut scene =
+        import_full(config, base, text, options.observer).map_err(|e| e.in_file(&cell.config))?;
+    scene.provenance.overrides = overrides;
+    create_parent(&dir)?;
+    scene.save(&dir)?;
+    Ok(scene)
 }
 
 /// Run cell `i` into `out` unless it is done; returns whether it ran.

@@ -4,14 +4,60 @@
 //! directory per variant). Studies share cells with the same key, so the table's runs also serve
 //! the noise study's `shipped` level.
 
-use crate::suite::{LoadedSuite, StudyKind, StudySpec};
+use crate::suite::{LoadedSuite, SceneSpec, StudyKind, StudySpec};
 use crate::{Error, Result};
+use prism_domain::import::ImportConfig;
 use prism_domain::simulate::SimulateConfig;
 use prism_domain::yaml::Overrides;
 use prism_recon::methods::fourdsg::ablation::Study;
 use prism_recon::{Method, MethodConfig};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+/// A scene's voxels along x, y, z, its channel count and configured training views, from its
+/// config with `overrides`.
+fn scene_shape(spec: &SceneSpec, overrides: &Overrides) -> prism_domain::Result<SceneShape> {
+    if spec.import {
+        let c: ImportConfig = prism_domain::yaml::read_with(&spec.config, overrides)?;
+        let base = spec.config.parent().unwrap_or(Path::new("."));
+        let angles = c.angles_rad(base)?;
+        let (train, _) = c.pick_views(angles.len())?;
+        let (g, _) = c.geometry(angles)?;
+        let v = &g.volume;
+        Ok(([v.nx, v.ny, v.nz], c.channels.len(), train.len()))
+    } else {
+        let c = SimulateConfig::load_with(&spec.config, overrides)?;
+        let n = c.geometry.volume.n;
+        Ok(([n; 3], c.channels.len(), c.geometry.views))
+    }
+}
+
+/// Voxels along x, y, z; channels; training views.
+type SceneShape = ([usize; 3], usize, usize);
+
+impl SceneCell {
+    /// The grid as tables print it: `64³` for a cube, `512×512×1` otherwise.
+    pub fn grid_label(&self) -> String {
+        let [x, y, z] = self.grid;
+        if x == y && y == z {
+            format!("{x}³")
+        } else {
+            format!("{x}×{y}×{z}")
+        }
+    }
+
+    /// The peak memory of making this scene (simulating it, or importing the scan with its
+    /// references).
+    pub fn footprint(&self) -> prism_domain::Result<u64> {
+        let f = if self.import {
+            let c: ImportConfig = prism_domain::yaml::read_with(&self.config, &self.overrides)?;
+            prism_domain::import::footprint(&c, self.config.parent().unwrap_or(Path::new(".")))?
+        } else {
+            SimulateConfig::load_with(&self.config, &self.overrides)?.footprint()?
+        };
+        Ok(f.total())
+    }
+}
 
 /// Where the cells live under the output directory.
 pub const SCENES: &str = "scenes";
@@ -27,11 +73,16 @@ pub struct SceneCell {
     pub views: usize,
     pub noise: String,
     pub seed: u64,
-    /// Edge of the volume grid (voxels) and number of channels.
+    /// Edge of the volume grid (voxels; a slice's larger side) and number of channels.
     pub n: usize,
+    /// Voxels along x, y, z.
+    pub grid: [usize; 3],
     pub channels: usize,
     pub config: PathBuf,
-    /// The scene's `set`, the noise level's, then `geometry.views` and `seed`.
+    /// `config` is an import config (a measured scan), not a simulation's.
+    pub import: bool,
+    /// The scene's `set`, the noise level's, then `geometry.views` and `seed` (an imported
+    /// scene: its `set`, then `select.views`).
     pub overrides: Overrides,
 }
 
@@ -99,6 +150,7 @@ impl Plan {
         let mut runs: Vec<RunCell> = Vec::new();
         let mut run_index: BTreeMap<String, usize> = BTreeMap::new();
         let mut shipped: BTreeMap<&str, (usize, usize, usize)> = BTreeMap::new();
+        let edge = |g: [usize; 3]| g[0].max(g[1]).max(g[2]);
         let mut methods: BTreeMap<&str, Method> = BTreeMap::new();
         let mut studies = Vec::new();
         for (i, st) in s.studies.iter().enumerate() {
@@ -110,9 +162,9 @@ impl Plan {
                 let (n, channels, views0) = match shipped.get(scene.as_str()) {
                     Some(&v) => v,
                     None => {
-                        let c = SimulateConfig::load_with(&spec.config, &base)
+                        let (grid, channels, views) = scene_shape(spec, &base)
                             .map_err(|e| Error::from(e).in_cell(format!("scenes.{scene}")))?;
-                        let v = (c.geometry.volume.n, c.channels.len(), c.geometry.views);
+                        let v = (edge(grid), channels, views);
                         shipped.insert(scene, v);
                         v
                     }
@@ -125,13 +177,30 @@ impl Plan {
                             let si = match scene_index.get(&key) {
                                 Some(&si) => si,
                                 None => {
-                                    let overrides = base.then(&Overrides::parse(&noise.set)?).then(
-                                        &Overrides::parse([
-                                            format!("geometry.views={views}"),
-                                            format!("seed={seed}"),
-                                        ])?,
-                                    );
-                                    let c = SimulateConfig::load_with(&spec.config, &overrides)
+                                    let overrides = if spec.import {
+                                        if !noise.set.is_empty() {
+                                            return Err(Error::from(prism_domain::Error::invalid(
+                                                field("noise"),
+                                                format!(
+                                                    "scene `{scene}` is a measured scan: \
+                                                         its noise is its own (noise level \
+                                                         `{}` sets {:?})",
+                                                    noise.name, noise.set
+                                                ),
+                                            )));
+                                        }
+                                        base.then(&Overrides::parse([format!(
+                                            "select.views={views}"
+                                        )])?)
+                                    } else {
+                                        base.then(&Overrides::parse(&noise.set)?).then(
+                                            &Overrides::parse([
+                                                format!("geometry.views={views}"),
+                                                format!("seed={seed}"),
+                                            ])?,
+                                        )
+                                    };
+                                    let (grid, channels, _) = scene_shape(spec, &overrides)
                                         .map_err(|e| Error::from(e).in_cell(&key))?;
                                     scenes.push(SceneCell {
                                         key: key.clone(),
@@ -139,9 +208,11 @@ impl Plan {
                                         views,
                                         noise: noise.name.clone(),
                                         seed,
-                                        n: c.geometry.volume.n,
-                                        channels: c.channels.len(),
+                                        n: edge(grid),
+                                        grid,
+                                        channels,
                                         config: spec.config.clone(),
+                                        import: spec.import,
                                         overrides,
                                     });
                                     scene_index.insert(key.clone(), scenes.len() - 1);
@@ -323,5 +394,51 @@ mod tests {
             "{e}"
         );
         assert!(e.contains("s.yaml"), "{e}");
+    }
+
+    #[test]
+    fn a_measured_scan_gets_its_views_by_select_and_refuses_noise() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        // 24 views of a 1 × 8 detector line, as headerless f32.
+        std::fs::write(d.join("li.raw"), vec![0u8; 24 * 8 * 4]).unwrap();
+        std::fs::write(
+            d.join("scan.yaml"),
+            "name: m\ngeometry:\n  fan: { dso: 50.0, dsd: 80.0, cols: 8, pitch: 1.0, nx: 10, ny: 12, dx: 0.5, dy: 0.5 }\n\
+             angles: { count: 24 }\nchannels:\n\
+             \x20 - { label: a, coordinate: { kind: tube_voltage, kvp: 50 },\n\
+             \x20     line_integrals: { path: li.raw, raw: { dtype: f32, shape: [24, 1, 8] } } }\n\
+             select: { views: 12 }\n",
+        )
+        .unwrap();
+        std::fs::write(d.join("sart.yaml"), "method: sart\n").unwrap();
+        let text = "name: t\nscenes:\n  m: { config: scan.yaml, import: true }\n\
+                    methods:\n  sart: { config: sart.yaml }\n\
+                    studies:\n  - { name: v, kind: table, scenes: [m], methods: [sart], views: [shipped, 6] }\n";
+        std::fs::write(d.join("s.yaml"), text).unwrap();
+        let suite = LoadedSuite::load(&d.join("s.yaml"), &Overrides::default()).unwrap();
+        let plan = Plan::new(&suite).unwrap();
+        let keys: Vec<&str> = plan.scenes.iter().map(|s| s.key.as_str()).collect();
+        assert_eq!(keys, ["m-v12-shipped-s0", "m-v6-shipped-s0"]);
+        let m = &plan.scenes[1];
+        assert!(m.import);
+        assert_eq!(m.overrides.texts(), ["select.views=6"]);
+        assert_eq!((m.n, m.channels, m.views), (12, 1, 6));
+        assert_eq!(m.grid_label(), "10×12×1");
+        // A noise level is the simulator's: a measured scan has its own.
+        let noisy = text.replace(
+            "views: [shipped, 6] }",
+            "noise: [{name: hi, set: [\"noise={i0: 1.0e4}\"]}] }",
+        );
+        std::fs::write(d.join("s.yaml"), noisy).unwrap();
+        let suite = LoadedSuite::load(&d.join("s.yaml"), &Overrides::default()).unwrap();
+        let e = Plan::new(&suite).unwrap_err().to_string();
+        assert!(e.contains("measured scan"), "{e}");
+        // More views than the scan has: refused at planning, naming the field.
+        let many = text.replace("views: [shipped, 6]", "views: [30]");
+        std::fs::write(d.join("s.yaml"), many).unwrap();
+        let suite = LoadedSuite::load(&d.join("s.yaml"), &Overrides::default()).unwrap();
+        let e = Plan::new(&suite).unwrap_err().to_string();
+        assert!(e.contains("select.views"), "{e}");
     }
 }

@@ -32,11 +32,16 @@ fn one_job() -> usize {
     1
 }
 
-/// A scene: a scene config (`configs/*.yaml`) and overrides of it.
+/// A scene: a scene config (`configs/*.yaml`, simulated) or a measured scan's import config
+/// (`configs/real/*.yaml`, `import: true`), and overrides of it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneSpec {
     pub config: PathBuf,
+    /// `config` is an import config (`prism import`): a measured scan, its views picked by the
+    /// study (`select.views`), with neither noise levels nor seeds.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub import: bool,
     /// Name in tables and figures (default: the key).
     #[serde(default)]
     pub label: Option<String>,

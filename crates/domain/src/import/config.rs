@@ -60,6 +60,80 @@ pub enum GeometrySource {
     },
     /// TIGRE's Python fields in TIGRE's orders (`(v, u)`, `(z, y, x)`).
     Tigre(TigreGeometry),
+    /// A 2-D fan beam on a flat detector line: one slice (`docs/geometry.md`).
+    Fan(FanGeometry),
+}
+
+/// A fan beam on a flat detector line, reconstructing one slice: exactly the middle row of a
+/// cone beam, so the scene stores it as a one-row cone beam over a one-voxel-thick volume (every
+/// ray lies in the plane z = 0, through the voxel centres). The row's height is `pitch` and the
+/// slice is as thick as the row seen at the axis (`pitch · dso / dsd`); neither changes a line
+/// integral.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FanGeometry {
+    /// Source → rotation axis and source → detector distances, mm.
+    pub dso: f64,
+    pub dsd: f64,
+    /// Detector columns, their pitch (mm) and the shift of the detector centre along u (mm): a
+    /// rotation axis projecting `k` columns right of the centre is `offset_u = k·pitch`.
+    pub cols: usize,
+    pub pitch: f64,
+    #[serde(default)]
+    pub offset_u: f64,
+    /// The slice: voxel counts and sizes (mm) along x and y, its centre (x, y) in mm.
+    pub nx: usize,
+    pub ny: usize,
+    pub dx: f64,
+    pub dy: f64,
+    #[serde(default)]
+    pub offset: [f64; 2],
+}
+
+impl FanGeometry {
+    /// The equivalent one-row cone-beam geometry with `angles_rad`.
+    pub fn to_geometry(&self, angles_rad: Vec<f64>) -> Result<Geometry> {
+        crate::error::ensure_positive("pitch", self.pitch)?;
+        crate::error::ensure_positive("dsd", self.dsd)?;
+        let g = Geometry {
+            beam: Beam::Cone,
+            dso: self.dso,
+            dsd: self.dsd,
+            detector: Detector {
+                rows: 1,
+                cols: self.cols,
+                pitch_u: self.pitch,
+                pitch_v: self.pitch,
+                offset_u: self.offset_u,
+                offset_v: 0.0,
+            },
+            volume: VolumeGrid {
+                nx: self.nx,
+                ny: self.ny,
+                nz: 1,
+                dx: self.dx,
+                dy: self.dy,
+                dz: self.pitch * self.dso / self.dsd,
+                offset: [self.offset[0], self.offset[1], 0.0],
+            },
+            angles_rad,
+        };
+        // Errors name the fan's own fields, not the cone fields they became.
+        g.validate().map_err(|e| match e {
+            Error::Invalid { field, message } => {
+                let name = field
+                    .trim_start_matches("detector.")
+                    .trim_start_matches("volume.");
+                let name = match name {
+                    "pitch_u" | "pitch_v" | "dz" => "pitch",
+                    other => other,
+                };
+                Error::invalid(name, message)
+            }
+            other => other,
+        })?;
+        Ok(g)
+    }
 }
 
 /// The full scan's angles: evenly spaced (`count`, `start_deg`, `span_deg`), listed (`deg`), or
@@ -74,6 +148,8 @@ pub struct AngleSpec {
     pub span_deg: Option<f64>,
     pub deg: Option<Vec<f64>>,
     pub file: Option<PathBuf>,
+    /// The dataset holding the angles when `file` is HDF5 (`/exchange/theta`).
+    pub dataset: Option<String>,
     pub unit: Option<AngleUnit>,
 }
 
@@ -100,15 +176,25 @@ pub struct ChannelSource {
     /// The views of the full scan this channel's images were taken at, in stack order (default:
     /// all of them); the other views are marked unavailable for it.
     pub views: Option<Vec<usize>>,
+    /// This channel's reference recon config, overriding `select.reference` (a regulariser
+    /// weight suited to its noise).
+    pub reference: Option<PathBuf>,
 }
 
-/// Images: a file holding a stack (`.npy`, `.tif`/`.tiff`, or headerless with `raw`), or a
-/// directory of one image per view (`.npy` or `.tif`, in file-name order).
+/// Images: a file holding a stack (`.npy`, `.tif`/`.tiff`, a `dataset` of an HDF5 or MATLAB
+/// v7.3 file, or headerless with `raw`), or a directory of one image per view (`.npy` or
+/// `.tif`, in file-name order).
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ImageSource {
     pub path: PathBuf,
     pub raw: Option<RawLayout>,
+    /// HDF5: the dataset's path in the file (`/exchange/data`, `/CtData/sinogram`).
+    pub dataset: Option<String>,
+    /// HDF5: the stored axis order, `:`-separated names of `theta` (views or frames), `y`
+    /// (detector rows) and `x` (columns), when the dataset has no `axes` attribute and is not
+    /// `theta:y:x` (MATLAB stores column-major: a `views × cols` sinogram is `x:theta`).
+    pub axes: Option<String>,
 }
 
 /// A headerless file: element type, shape (`[views, rows, cols]` or `[rows, cols]`), byte
@@ -158,17 +244,20 @@ pub struct ViewSelection {
     /// Test views (projection metrics), evenly among the views not used for training.
     #[serde(default)]
     pub test_views: usize,
-    /// Reference volumes (`fdk`: of every measured view of each channel, as the paper's real
-    /// data use; `none`).
-    #[serde(default)]
+    /// Reference volumes, each channel reconstructed from every view it was measured at:
+    /// `fdk` (as the paper's real data use), `{recon: classic.yaml}` (a classic method's config,
+    /// e.g. non-negative TV; a channel's own `reference` overrides it), or `none`.
+    #[serde(default, with = "serde_yaml_ng::with::singleton_map")]
     pub reference: ReferenceKind,
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ReferenceKind {
     #[default]
     Fdk,
+    /// A classic recon config (`configs/recon/*.yaml`, path relative to the import config).
+    Recon(PathBuf),
     None,
 }
 
@@ -198,6 +287,11 @@ impl ImportConfig {
                 t.to_geometry(angles_rad)
                     .map_err(|e| e.under("geometry.tigre"))?,
                 true,
+            )),
+            GeometrySource::Fan(f) => Ok((
+                f.to_geometry(angles_rad)
+                    .map_err(|e| e.under("geometry.fan"))?,
+                self.rows_bottom_up,
             )),
         }
     }

@@ -1,6 +1,7 @@
 //! Measured images as `f32` stacks `[n][rows][cols]`: `.npy` (any integer or float type),
-//! TIFF (one grayscale page per image; 8/16/32-bit integers or 32/64-bit floats), headerless
-//! raw files, and directories of one image per file. Errors name the file.
+//! TIFF (one grayscale page per image; 8/16/32-bit integers or 32/64-bit floats), HDF5 and MATLAB
+//! v7.3 datasets ([`super::hdf5`]), headerless raw files, and directories of one image per file.
+//! Errors name the file.
 
 use super::config::{ImageSource, RawLayout, RawType};
 use crate::{Error, Result};
@@ -22,6 +23,31 @@ pub fn read_stack(source: &ImageSource, base: &Path) -> Result<Array3<f32>> {
             ));
         }
         return read_dir(&path);
+    }
+    if source.dataset.is_some() || super::hdf5::is_hdf5(&path) {
+        if source.raw.is_some() {
+            return Err(Error::field(
+                &path,
+                "raw",
+                "an HDF5 file has its own layout",
+            ));
+        }
+        let Some(name) = &source.dataset else {
+            return Err(Error::field(
+                &path,
+                "dataset",
+                "an HDF5 file needs the dataset's path (`dataset: /exchange/data`)",
+            ));
+        };
+        let a = super::hdf5::read_stack(&path, name, source.axes.as_deref())?;
+        return as_stack(a, &path);
+    }
+    if source.axes.is_some() {
+        return Err(Error::field(
+            &path,
+            "axes",
+            "only HDF5 datasets take `axes`",
+        ));
     }
     read_file(&path, source.raw.as_ref())
 }

@@ -13,6 +13,7 @@
 //! `prism import` command computes it between the two (`prism_recon`).
 
 pub mod config;
+pub mod hdf5;
 pub mod images;
 #[cfg(test)]
 mod tests;
@@ -38,7 +39,7 @@ pub struct FullScan {
 /// Read and convert every channel of `config` (paths relative to `base`); `config_text` is kept
 /// as the scene's provenance.
 pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result<FullScan> {
-    let angles = config.angles.resolve(|p| read_angles(&base.join(p)))?;
+    let angles = config.angles_rad(base)?;
     let (geometry, bottom_up) = config.geometry(angles)?;
     let n_views = geometry.views();
     let (rows, cols) = (geometry.detector.rows, geometry.detector.cols);
@@ -215,7 +216,7 @@ pub fn line_integrals(
 /// as f32, with full-view FDK references one channel's filtered projections and volume, the
 /// references while stacked, and the scene of the selected views with its copy of them.
 pub fn footprint(config: &ImportConfig, base: &Path) -> Result<Footprint> {
-    let angles = config.angles.resolve(|p| read_angles(&base.join(p)))?;
+    let angles = config.angles_rad(base)?;
     let (g, _) = config.geometry(angles)?;
     let (views, rows, cols) = (g.views(), g.detector.rows, g.detector.cols);
     let m = config.channels.len();
@@ -238,10 +239,12 @@ pub fn footprint(config: &ImportConfig, base: &Path) -> Result<Footprint> {
         "one channel's images as read and as f32",
         memory::bytes(pixels, per_value + 4),
     );
-    if config.select.reference == ReferenceKind::Fdk {
+    let referenced = config.select.reference != ReferenceKind::None
+        || config.channels.iter().any(|c| c.reference.is_some());
+    if referenced {
         f.add(
-            "full-view FDK of one channel (filtered projections, volume)",
-            memory::bytes(pixels, 4).saturating_add(memory::bytes(voxels, 4)),
+            "full-view reference of one channel (its projections twice, volume and iterates)",
+            memory::bytes(pixels, 8).saturating_add(memory::bytes(voxels, 32)),
         );
         f.add(
             format!("reference volumes, twice while stacked or copied ({m} × {voxels} voxels)"),
@@ -264,8 +267,21 @@ fn mean_image(source: &config::ImageSource, base: &Path, field: &str) -> Result<
         .ok_or_else(|| Error::invalid(field, "holds no image"))
 }
 
-/// Angles from a `.npy` (any numeric type) or a text file of one value per line (`#` comments).
-fn read_angles(path: &Path) -> Result<Vec<f64>> {
+/// Angles from a `.npy` (any numeric type), an HDF5 `dataset`, or a text file of one value per
+/// line (`#` comments).
+fn read_angles(path: &Path, dataset: Option<&str>) -> Result<Vec<f64>> {
+    if let Some(name) = dataset {
+        return hdf5::read_vector(path, name);
+    }
+    if hdf5::is_hdf5(path) {
+        return Err(Error::invalid(
+            "angles.dataset",
+            format!(
+                "{} is HDF5: name the dataset holding the angles",
+                path.display()
+            ),
+        ));
+    }
     if path.extension().is_some_and(|e| e == "npy") {
         let a = crate::scene::npy::read_npy_any(path, "angles")?;
         return Ok(a.iter().map(|&v| v as f64).collect());
@@ -280,6 +296,14 @@ fn read_angles(path: &Path) -> Result<Vec<f64>> {
                 .map_err(|e| Error::field(path, format!("line {}", i + 1), e.to_string()))
         })
         .collect()
+}
+
+impl ImportConfig {
+    /// The full scan's angles in radians (an angle file relative to `base`).
+    pub fn angles_rad(&self, base: &Path) -> Result<Vec<f64>> {
+        self.angles
+            .resolve(|p| read_angles(&base.join(p), self.angles.dataset.as_deref()))
+    }
 }
 
 impl Scene {

@@ -14,7 +14,8 @@
 //! `crates/domain/tests/fixtures/ssim/` with the script that produced them.
 //!
 //! 3-D SSIM ([`ssim_3d`]) follows R²-Gaussian: 2-D SSIM on every slice along each of the three
-//! axes, skipping slices where the reference is all zero, mean per axis, then the mean of the axes.
+//! axes, skipping slices where the reference is all zero, mean per axis, then the mean of the axes
+//! (of the axes whose slices hold the window: one slice of a 2-D scene scores as its 2-D SSIM).
 
 use crate::{Error, Result};
 use ndarray::{Array2, ArrayView2, ArrayView3, Axis};
@@ -58,7 +59,8 @@ impl Default for SsimParams {
 /// Per-axis and mean 3-D SSIM. `axes` are in array order: slices normal to z, y, x.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Ssim3d {
-    pub axes: [f64; 3],
+    /// `None` for an axis whose slices are smaller than the window.
+    pub axes: [Option<f64>; 3],
     pub mean: f64,
 }
 
@@ -171,13 +173,31 @@ pub fn ssim_2d(a: ArrayView2<f32>, b: ArrayView2<f32>, p: &SsimParams) -> Result
 }
 
 /// 3-D SSIM of `pred` against `truth` (both `[z][y][x]`), R²-Gaussian style (module docs).
+/// An axis whose slices are smaller than the window (a thin slab, a 2-D scene's one slice) is
+/// left out of the mean, so one slice scores as its 2-D SSIM; with zero padding, a volume too
+/// small on every axis keeps all three.
 pub fn ssim_3d(pred: ArrayView3<f32>, truth: ArrayView3<f32>, p: &SsimParams) -> Result<Ssim3d> {
     check_params(p)?;
     crate::error::ensure_shape("prediction", pred.shape(), truth.shape(), "the reference")?;
-    let mut axes = [0.0; 3];
-    for (k, out) in axes.iter_mut().enumerate() {
-        let n = truth.shape()[k];
-        let vals: Vec<f64> = (0..n)
+    let n = truth.shape();
+    let window = 2 * RADIUS + 1;
+    let fits = |k: usize| (0..3).filter(|&j| j != k).all(|j| n[j] >= window);
+    let mut scored: Vec<usize> = (0..3).filter(|&k| fits(k)).collect();
+    if scored.is_empty() && p.border == Border::ZeroPad {
+        scored = vec![0, 1, 2];
+    }
+    if scored.is_empty() {
+        return Err(Error::invalid(
+            "reference",
+            format!(
+                "a {}×{}×{} volume has no slice as large as the 11×11 window",
+                n[0], n[1], n[2]
+            ),
+        ));
+    }
+    let mut axes = [None; 3];
+    for &k in &scored {
+        let vals: Vec<f64> = (0..n[k])
             .into_par_iter()
             .map(|i| {
                 let t = truth.index_axis(Axis(k), i);
@@ -196,10 +216,11 @@ pub fn ssim_3d(pred: ArrayView3<f32>, truth: ArrayView3<f32>, p: &SsimParams) ->
                 "the reference volume is all zero",
             ));
         }
-        *out = vals.iter().sum::<f64>() / vals.len() as f64;
+        axes[k] = Some(vals.iter().sum::<f64>() / vals.len() as f64);
     }
+    let used: Vec<f64> = axes.iter().flatten().copied().collect();
     Ok(Ssim3d {
         axes,
-        mean: axes.iter().sum::<f64>() / 3.0,
+        mean: used.iter().sum::<f64>() / used.len() as f64,
     })
 }

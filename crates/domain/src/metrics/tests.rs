@@ -1,5 +1,5 @@
 use super::*;
-use ndarray::{Array2, Array3};
+use ndarray::{Array2, Array3, Axis, s};
 use ndarray_npy::read_npy;
 use std::path::PathBuf;
 
@@ -55,12 +55,30 @@ fn ssim_3d_matches_scikit_image_per_axis() {
             .map(|v| v.as_f64().unwrap())
             .collect();
         for (k, (g, w)) in got.axes.iter().zip(&want).enumerate() {
+            let g = g.expect("every axis of the fixture holds the window");
             assert!((g - w).abs() <= 1e-4, "{key}[{k}]: {g} vs {w}");
         }
         assert!((got.mean - want.iter().sum::<f64>() / 3.0).abs() <= 1e-4);
     }
     let p = psnr(pred.view(), gt.view(), 1.0).unwrap();
     assert!((p - r["psnr3d"].as_f64().unwrap()).abs() < 1e-6, "{p}");
+}
+
+#[test]
+fn ssim_3d_of_one_slice_is_its_2d_ssim() {
+    // A 2-D scene's volume: one z slice. Its y and x slices (1 × n) cannot hold the window and are
+    // left out, under both border conventions.
+    let gt: Array3<f32> = read_npy(fixture("gt3.npy")).unwrap();
+    let pred: Array3<f32> = read_npy(fixture("pred3.npy")).unwrap();
+    let (g, p) = (gt.slice(s![3..4, .., ..]), pred.slice(s![3..4, .., ..]));
+    for params in [crop(), SsimParams::default()] {
+        let got = ssim_3d(p, g, &params).unwrap();
+        let want = ssim_2d(p.index_axis(Axis(0), 0), g.index_axis(Axis(0), 0), &params).unwrap();
+        assert_eq!(got.axes[1..], [None, None]);
+        assert_eq!(got.mean, want);
+    }
+    let tiny = Array3::<f32>::ones((2, 3, 4));
+    assert!(ssim_3d(tiny.view(), tiny.view(), &crop()).is_err());
 }
 
 #[test]

@@ -220,10 +220,10 @@ fn header(ctx: &Context) -> String {
     for c in &ctx.plan.scenes {
         let _ = writeln!(
             md,
-            "| `{}` | {} | {}³ | {} | {} | {} | {} |",
+            "| `{}` | {} | {} | {} | {} | {} | {} |",
             c.key,
             s.scene_label(&c.scene),
-            c.n,
+            c.grid_label(),
             c.views,
             c.noise,
             c.seed,

@@ -127,14 +127,16 @@ impl TvOptions {
 }
 
 /// One channel's data: the projector at its views, its line integrals `[view][row][col]` at those
-/// views, and its weight `w_c > 0` in the regulariser.
+/// views, its weight `w_c > 0` in the regulariser, and where its iterate starts (zero if `None`).
 pub struct ChannelData<'a> {
     pub projector: &'a Joseph,
     pub projections: ArrayView3<'a, f32>,
     pub weight: f32,
+    pub start: Option<ArrayView3<'a, f32>>,
 }
 
-/// Reconstruct every channel jointly from zero; `progress(k)` after iteration k.
+/// Reconstruct every channel jointly from its start (zero by default); `progress(k)` after
+/// iteration k.
 pub fn tv(
     channels: &[ChannelData],
     opts: &TvOptions,
@@ -297,9 +299,19 @@ impl Primal {
             })
             .collect();
         let n = grid.len();
+        let x = match ch.start {
+            Some(v) if v.len() == n => v.iter().copied().collect(),
+            Some(v) => {
+                return Err(Error::invalid(
+                    "start",
+                    format!("{:?} voxels, the grid has {n}", v.shape()),
+                ));
+            }
+            None => vec![0.0; n],
+        };
         Ok(Primal {
-            x: vec![0.0; n],
-            xbar: vec![0.0; n],
+            xbar: x.clone(),
+            x,
             tau,
             p: Array3::zeros(sigma_p.raw_dim()),
             sigma_p,

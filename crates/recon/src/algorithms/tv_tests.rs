@@ -44,6 +44,7 @@ fn solve(a: &Joseph, b: &Array3<f32>, o: &TvOptions) -> Array3<f32> {
         projector: a,
         projections: b.view(),
         weight: 1.0,
+        start: None,
     };
     tv(&[ch], o, &mut |_| {}).unwrap().remove(0)
 }
@@ -85,6 +86,7 @@ fn it_reaches_the_minimum_of_its_objective() {
             projector: &a,
             projections: b.view(),
             weight: 1.0,
+            start: None,
         }];
         let f = |x: &Array3<f32>| objective(&ch, std::slice::from_ref(x), &o).unwrap();
         let x200 = solve(&a, &b, &opts(200, 0.5, coupling));
@@ -141,6 +143,7 @@ fn coupling_pays_when_each_channel_is_measured_at_other_angles() {
                 projector: a,
                 projections: b.view(),
                 weight: 1.0 / k,
+                start: None,
             })
             .collect();
         let x = tv(&chans, &opts(200, 0.3, coupling), &mut |_| {}).unwrap();
@@ -200,6 +203,7 @@ fn bad_inputs_name_their_field() {
             projector: a,
             projections: b.view(),
             weight,
+            start: None,
         }
     }
     let run =
@@ -213,4 +217,46 @@ fn bad_inputs_name_their_field() {
     assert!(
         run(&[ch(&a, &b, 1.0), ch(&a, &short, 1.0)], &good).contains("channels[1].projections")
     );
+}
+
+#[test]
+fn a_start_near_the_minimum_gets_there_in_fewer_iterations() {
+    // `start`: PDHG from the FDK of well-sampled noisy data (36 views) is nearer the minimum
+    // after a few iterations than from zero. Only the primal starts there: the duals start at
+    // zero, so even a start at the minimiser is first left (Φ 41.67 after 30 iterations against
+    // the minimum's 40.80, measured), and the gain is modest (41.67 from the FDK, 41.88 from zero).
+    let (g, truth) = problem(36, 1.0);
+    let a = Joseph::new(&g).unwrap();
+    let b = measure(&a, &truth, 0.05, 3);
+    let o = opts(30, 0.5, Coupling::Channel);
+    fn data<'a>(
+        a: &'a Joseph,
+        b: &'a Array3<f32>,
+        start: Option<&'a Array3<f32>>,
+    ) -> ChannelData<'a> {
+        ChannelData {
+            projector: a,
+            projections: b.view(),
+            weight: 1.0,
+            start: start.map(|s| s.view()),
+        }
+    }
+    let from = |start: Option<&Array3<f32>>, o: &TvOptions| {
+        tv(&[data(&a, &b, start)], o, &mut |_| {})
+            .unwrap()
+            .remove(0)
+    };
+    let ch = [data(&a, &b, None)];
+    let f = |x: &Array3<f32>| objective(&ch, std::slice::from_ref(x), &o).unwrap();
+    let fdk = crate::algorithms::fdk(&g, b.view(), Default::default())
+        .unwrap()
+        .mapv(|v| v.max(0.0));
+    let best = from(None, &opts(800, 0.5, Coupling::Channel));
+    let (zero, warm) = (from(None, &o), from(Some(&fdk), &o));
+    let (fz, fw, fb) = (f(&zero), f(&warm), f(&best));
+    eprintln!("Φ after 30: from zero {fz:.4}, from FDK {fw:.4} (800 from zero: {fb:.4})");
+    assert!(fb < fw && fw < fz, "{fb} < {fw} < {fz}");
+    // A start of the wrong size is refused.
+    let small = Array3::<f32>::zeros((2, 2, 2));
+    assert!(tv(&[data(&a, &b, Some(&small))], &o, &mut |_| {}).is_err());
 }

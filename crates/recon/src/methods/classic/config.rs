@@ -58,6 +58,27 @@ pub struct ClassicConfig {
     pub seed: u64,
     /// TV: the regulariser (`weight`, `coupling`); `nonneg` is its constraint x ≥ 0.
     pub tv: TvConfig,
+    /// TV: where the iterate starts, `zero` (default) or `fdk` (each channel's FDK from its
+    /// views, clipped at 0 under `nonneg`): nearer the minimum where the views are many. Only
+    /// the primal starts there (the duals start at zero), so the gain is in the first iterations.
+    #[serde(skip_serializing_if = "Start::is_zero")]
+    pub start: Start,
+}
+
+/// Where an iterative method's volume starts.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Start {
+    #[default]
+    Zero,
+    Fdk,
+}
+
+impl Start {
+    /// The default: left out of resolved configs, so runs made before the option still match.
+    pub fn is_zero(&self) -> bool {
+        *self == Start::Zero
+    }
 }
 
 /// The regulariser of `method: tv` (YAML section `tv:`).
@@ -105,6 +126,7 @@ impl Default for ClassicConfig {
             nonneg: true,
             seed: 0,
             tv: TvConfig::default(),
+            start: Start::Zero,
         }
     }
 }
@@ -148,6 +170,12 @@ impl ClassicConfig {
     pub fn validate(&self) -> Result<()> {
         if self.method != ClassicMethod::Fdk && self.iterations == Some(0) {
             return Err(Error::invalid("iterations", "must be at least 1"));
+        }
+        if self.start == Start::Fdk && self.method != ClassicMethod::Tv {
+            return Err(Error::invalid(
+                "start",
+                "`fdk` is a start of `method: tv` only",
+            ));
         }
         self.sart_options().validate()?;
         self.tv_options().validate()

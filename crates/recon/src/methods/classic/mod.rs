@@ -6,6 +6,7 @@
 
 pub mod bench;
 pub mod config;
+pub mod import;
 pub(crate) mod run;
 
 pub use config::{ClassicConfig, ClassicMethod};
@@ -49,10 +50,12 @@ pub fn reconstruct_channel(
         ),
         ClassicMethod::Tv => {
             let a = Joseph::new(&sub)?;
+            let start = tv_start(config, &sub, p.view())?;
             let one = ChannelData {
                 projector: &a,
                 projections: p.view(),
                 weight: 1.0,
+                start: start.as_ref().map(|v| v.view()),
             };
             let mut v = tv(&[one], &config.tv_options(), progress)?;
             Ok(v.remove(0))
@@ -77,6 +80,7 @@ pub fn reconstruct_jointly(
     config.validate()?;
     let mut projectors = Vec::with_capacity(views.len());
     let mut data = Vec::with_capacity(views.len());
+    let mut starts = Vec::with_capacity(views.len());
     for (c, (b, v)) in projections.iter().zip(views).enumerate() {
         if v.is_empty() {
             return Err(Error::invalid(
@@ -84,18 +88,40 @@ pub fn reconstruct_jointly(
                 "the view list is empty",
             ));
         }
-        projectors.push(Joseph::new(&geometry.with_views(v))?);
-        data.push(b.select(Axis(0), v));
+        let sub = geometry.with_views(v);
+        let b = b.select(Axis(0), v);
+        starts.push(tv_start(config, &sub, b.view())?);
+        projectors.push(Joseph::new(&sub)?);
+        data.push(b);
     }
     let channels: Vec<ChannelData> = projectors
         .iter()
         .zip(&data)
         .zip(gains)
-        .map(|((a, b), &g)| ChannelData {
+        .zip(&starts)
+        .map(|(((a, b), &g), s)| ChannelData {
             projector: a,
             projections: b.view(),
             weight: (1.0 / g) as f32,
+            start: s.as_ref().map(|v| v.view()),
         })
         .collect();
     tv(&channels, &config.tv_options(), progress)
+}
+
+/// TV's starting volume of one channel (`start: fdk`: its FDK from `projections` at `geometry`'s
+/// views, clipped at 0 under `nonneg`), or `None` to start from zero.
+fn tv_start(
+    config: &ClassicConfig,
+    geometry: &Geometry,
+    projections: ArrayView3<f32>,
+) -> Result<Option<Array3<f32>>> {
+    if config.start != config::Start::Fdk {
+        return Ok(None);
+    }
+    let mut v = fdk(geometry, projections, config.filter)?;
+    if config.nonneg {
+        v.mapv_inplace(|x| x.max(0.0));
+    }
+    Ok(Some(v))
 }

@@ -1,0 +1,117 @@
+//! A measured scan into a scene (`prism import`, and the imported scenes of `prism experiment`):
+//! the images read and converted ([`prism_domain::import::assemble`]), each channel's
+//! reference reconstructed by a classic method from every view it was measured at, then the
+//! training and test views kept.
+
+use super::{ClassicConfig, ClassicMethod, reconstruct_channel};
+use crate::{Error, Result};
+use prism_domain::import::{ImportConfig, ReferenceKind, assemble};
+use prism_domain::observe::{Level, Observer};
+use prism_domain::scene::Scene;
+use std::path::Path;
+
+/// A channel's reference method and where it came from (`FDK`, or its config's path).
+pub type Reference = (ClassicConfig, String);
+
+/// Each channel's reference (`select.reference`, or the channel's own `reference`), or `None`
+/// when the scene gets no references. Config paths are relative to `base`.
+pub fn reference_configs(config: &ImportConfig, base: &Path) -> Result<Option<Vec<Reference>>> {
+    let read = |path: &Path| -> Result<Reference> {
+        let file = base.join(path);
+        let text = std::fs::read_to_string(&file).map_err(|e| prism_domain::Error::io(&file, e))?;
+        let c = ClassicConfig::from_yaml(&text, &file)?;
+        Ok((c, path.display().to_string()))
+    };
+    let shared = match &config.select.reference {
+        ReferenceKind::None => None,
+        ReferenceKind::Fdk => Some((ClassicConfig::new(ClassicMethod::Fdk), "FDK".to_string())),
+        ReferenceKind::Recon(path) => Some(read(path)?),
+    };
+    let Some(shared) = shared else {
+        if let Some(c) = config.channels.iter().position(|c| c.reference.is_some()) {
+            return Err(Error::invalid(
+                format!("channels[{c}].reference"),
+                "given, but select.reference is `none`: a scene has references for every \
+                 channel or for none",
+            ));
+        }
+        return Ok(None);
+    };
+    config
+        .channels
+        .iter()
+        .map(|c| match &c.reference {
+            Some(path) => read(path),
+            None => Ok(shared.clone()),
+        })
+        .collect::<Result<Vec<_>>>()
+        .map(Some)
+}
+
+/// The scene of `config` (paths relative to `base`; `text` is its provenance): every channel
+/// read, referenced and cut to the selected views. Phases, warnings and each reference's
+/// iterations go to `observer`.
+pub fn import_scene(
+    config: &ImportConfig,
+    base: &Path,
+    text: &str,
+    observer: &dyn Observer,
+) -> Result<Scene> {
+    let full = import_full(config, base, text, observer)?;
+    select_views(config, &full)
+}
+
+/// `full` (an [`import_full`] scene) cut to the views `config` selects.
+pub fn select_views(config: &ImportConfig, full: &Scene) -> Result<Scene> {
+    let (train, test) = config.pick_views(full.n_views())?;
+    Ok(full.with_views(&train, &test)?)
+}
+
+/// The whole scan of `config` with its references, every view a training view: what
+/// [`import_scene`] selects from (scenes of one scan at several view counts share it).
+pub fn import_full(
+    config: &ImportConfig,
+    base: &Path,
+    text: &str,
+    observer: &dyn Observer,
+) -> Result<Scene> {
+    let references = reference_configs(config, base)?;
+    observer.phase("reading and converting the images", 0);
+    let full = assemble(config, base, text)?;
+    for (ch, n) in full.scene.channels.iter().zip(&full.raised) {
+        if *n > 0 {
+            observer.note(
+                Level::Warning,
+                &format!(
+                    "channel `{}`: {n} pixels had dark-corrected counts below min_counts = {} \
+                     and were raised to it",
+                    ch.label, config.min_counts
+                ),
+            );
+        }
+    }
+    let mut scene = full.scene;
+    let n = scene.n_views();
+    if let Some(references) = &references {
+        let mut volumes = Vec::with_capacity(references.len());
+        for (c, (reference, from)) in references.iter().enumerate() {
+            let views: Vec<usize> = (0..n).filter(|&v| scene.availability[[v, c]]).collect();
+            let label = &scene.channels[c].label;
+            observer.phase(
+                &format!("reference of `{label}`: {from}, {} views", views.len()),
+                reference.resolved_iterations() as u64,
+            );
+            let v = reconstruct_channel(
+                reference,
+                &scene.geometry,
+                scene.channel_projections(c),
+                &views,
+                &mut |i| observer.progress(i as u64, label),
+            )
+            .map_err(|e| e.under(&format!("reference of channel `{label}` ({from})")))?;
+            volumes.push(v);
+        }
+        scene = scene.with_references(volumes)?;
+    }
+    Ok(scene)
+}
