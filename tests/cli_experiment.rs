@@ -284,7 +284,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
         t.contains("4 scene cells:")
             && t.contains("scenes/bird-dtv-v60-shipped-s0  (512×512×1, 60 views, 3 channels)  to run\n      importing needs ~")
             && t.contains("scenes/bird-v120-shipped-s0  (512×512×1, 120 views, 3 channels)")
-            && t.contains("34 run cells:")
+            && t.contains("36 run cells:")
             && t.contains("runs/bird-v30-shipped-s0/4dsg  to run\n"),
         "{t}"
     );
