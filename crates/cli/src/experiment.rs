@@ -258,7 +258,7 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
     };
     if let Some(i) = a.scene_cell {
         check_index(i, plan.scenes.len(), "--scene-cell")?;
-        let r = prism_experiment::execute::simulate_scene(&plan, out, i, &options);
+        let r = prism_experiment::execute::make_scene(&plan, out, i, &options);
         return single(r, &format!("scenes/{}", plan.scenes[i].key));
     }
     if let Some(i) = a.cell {

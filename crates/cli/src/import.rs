@@ -34,12 +34,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     let bars = Bars::new();
-    let mut scene =
-        import_scene(&config, base, &text, &bars).map_err(|e| e.in_file(&args.config))?;
+    let references = reference_configs(&config, base)?;
+    let mut scene = import_scene(&config, base, &text, references.as_deref(), &bars)
+        .map_err(|e| e.in_file(&args.config))?;
     scene.provenance.overrides = overrides.texts();
     scene.save(&args.out)?;
     bars.finish();
-    let references = match reference_configs(&config, base)? {
+    let references = match references {
         Some(r) => {
             let mut from: Vec<&str> = r.iter().map(|(_, f)| f.as_str()).collect();
             from.dedup();

@@ -19,7 +19,7 @@ use prism_domain::simulate::{SimulateConfig, simulate};
 use prism_recon::MethodConfig;
 use prism_recon::device::DeviceChoice;
 use prism_recon::evaluate::Evaluation;
-use prism_recon::methods::classic::import::{import_full, select_views};
+use prism_recon::methods::classic::import::{import_full, reference_configs, select_views};
 use prism_recon::methods::fourdsg::FourDsgMethod;
 use prism_recon::methods::fourdsg::ablation::ablate;
 use prism_recon::pipeline::{footprint, run};
@@ -192,8 +192,9 @@ pub fn run_state(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Re
     Ok(CellState::Changed(format!("{what} changed since it ran")))
 }
 
-/// Simulate scene cell `i` into `out` unless it is done; returns whether it ran.
-pub fn simulate_scene(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Result<bool> {
+/// Make scene cell `i` in `out` (simulate it, or cut it from its imported scan) unless it is
+/// done; returns whether it ran.
+pub fn make_scene(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Result<bool> {
     let cell = &plan.scenes[i];
     match scene_state(plan, out, i)? {
         CellState::Done => return Ok(false),
@@ -260,8 +261,9 @@ fn full_scan(
     import::footprint(config, base)
         .and_then(|f| f.check(&format!("scene cell `{}`", cell.key), options.allow_memory))
         .map_err(|e| e.in_file(&cell.config))?;
-    let mut scene =
-        import_full(config, base, text, options.observer).map_err(|e| e.in_file(&cell.config))?;
+    let references = reference_configs(config, base).map_err(|e| e.in_file(&cell.config))?;
+    let mut scene = import_full(config, base, text, references.as_deref(), options.observer)
+        .map_err(|e| e.in_file(&cell.config))?;
     scene.provenance.overrides = overrides;
     create_parent(&dir)?;
     scene.save(&dir)?;
@@ -430,7 +432,7 @@ pub fn run_plan(plan: &Plan, out: &Path, sel: &Selection, options: &ExecOptions)
         }
     };
     for &i in scenes {
-        let r = simulate_scene(plan, out, i, options);
+        let r = make_scene(plan, out, i, options);
         if r.is_err() {
             failed_scenes.insert(i);
         }

@@ -93,8 +93,6 @@ pub struct FanGeometry {
 impl FanGeometry {
     /// The equivalent one-row cone-beam geometry with `angles_rad`.
     pub fn to_geometry(&self, angles_rad: Vec<f64>) -> Result<Geometry> {
-        crate::error::ensure_positive("pitch", self.pitch)?;
-        crate::error::ensure_positive("dsd", self.dsd)?;
         let g = Geometry {
             beam: Beam::Cone,
             dso: self.dso,
@@ -347,6 +345,12 @@ impl AngleSpec {
             self.deg.is_some(),
             self.file.is_some(),
         ];
+        if self.dataset.is_some() && self.file.is_none() {
+            return Err(Error::invalid(
+                "angles.dataset",
+                "names a dataset of the angle `file`, which is not given",
+            ));
+        }
         if given.iter().filter(|&&g| g).count() != 1 {
             return Err(Error::invalid(
                 "angles",

@@ -136,7 +136,11 @@ fn list_datasets(group: &hdf5_reader::group::Group, prefix: &str, out: &mut Vec<
         return;
     };
     for d in datasets {
-        if out.len() < 40 && matches!(d.dtype(), Datatype::FloatingPoint { .. }) {
+        let numeric = matches!(
+            d.dtype(),
+            Datatype::FloatingPoint { .. } | Datatype::FixedPoint { .. }
+        );
+        if out.len() < 40 && numeric {
             out.push(format!("{prefix}/{} {:?}", d.name(), d.shape()));
         }
     }

@@ -49,15 +49,17 @@ pub fn reference_configs(config: &ImportConfig, base: &Path) -> Result<Option<Ve
 }
 
 /// The scene of `config` (paths relative to `base`; `text` is its provenance): every channel
-/// read, referenced and cut to the selected views. Phases, warnings and each reference's
-/// iterations go to `observer`.
+/// read, referenced by `references` (one per channel, [`reference_configs`]; `None`: no
+/// references) and cut to the selected views. Phases, warnings and each reference's iterations
+/// go to `observer`.
 pub fn import_scene(
     config: &ImportConfig,
     base: &Path,
     text: &str,
+    references: Option<&[Reference]>,
     observer: &dyn Observer,
 ) -> Result<Scene> {
-    let full = import_full(config, base, text, observer)?;
+    let full = import_full(config, base, text, references, observer)?;
     select_views(config, &full)
 }
 
@@ -73,9 +75,9 @@ pub fn import_full(
     config: &ImportConfig,
     base: &Path,
     text: &str,
+    references: Option<&[Reference]>,
     observer: &dyn Observer,
 ) -> Result<Scene> {
-    let references = reference_configs(config, base)?;
     observer.phase("reading and converting the images", 0);
     let full = assemble(config, base, text)?;
     for (ch, n) in full.scene.channels.iter().zip(&full.raised) {
@@ -92,7 +94,7 @@ pub fn import_full(
     }
     let mut scene = full.scene;
     let n = scene.n_views();
-    if let Some(references) = &references {
+    if let Some(references) = references {
         let mut volumes = Vec::with_capacity(references.len());
         for (c, (reference, from)) in references.iter().enumerate() {
             let views: Vec<usize> = (0..n).filter(|&v| scene.availability[[v, c]]).collect();
