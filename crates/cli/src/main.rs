@@ -7,6 +7,7 @@ mod ablate;
 #[cfg(not(target_env = "msvc"))]
 mod alloc;
 mod args;
+mod axis;
 mod bench;
 mod decompose;
 mod experiment;
@@ -84,6 +85,9 @@ enum Command {
     /// Measured projections (counts with flat and dark fields, or line integrals; .npy, TIFF,
     /// raw) of one or several acquisitions into a scene, with the full-view FDK as reference.
     Import(import::Args),
+    /// A scan's rotation axis estimated from its projections (opposing views on a full turn,
+    /// sharpness otherwise), with `--scan` the estimators' scores over a range of offsets.
+    Axis(axis::Args),
     /// Volumes (a scene's references, `prism recon` / `prism query` output) as NIfTI-1 (.nii,
     /// .nii.gz) or MetaImage (.mha) with the scene's voxel spacing and grid position, or TIFF stacks.
     Export(export::Args),
@@ -103,6 +107,7 @@ fn main() -> ExitCode {
         Command::Experiment(args) => experiment::run(args),
         Command::Export(args) => export::run(args),
         Command::Import(args) => import::run(args),
+        Command::Axis(args) => axis::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

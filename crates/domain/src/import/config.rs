@@ -18,6 +18,11 @@ pub struct ImportConfig {
     pub geometry: GeometrySource,
     /// The angles of the full scan, one per image of a full stack.
     pub angles: AngleSpec,
+    /// The rotation axis: `given` (the geometry's `offset_u`, the default), or estimated from
+    /// the projections and written into the scene's geometry: `auto`, `opposing`, `sharpness`,
+    /// or `{method: …, range_px: …}` (`docs/import.md`, "Rotation axis").
+    #[serde(default)]
+    pub axis: super::AxisConfig,
     /// Images stored with the bottom detector row first (TIGRE's order); Prism's row 0 is the
     /// top (+z). TIGRE geometries imply it.
     #[serde(default)]

@@ -70,12 +70,13 @@ fn parse_axes(text: &str, ndim: usize) -> std::result::Result<[Option<usize>; 3]
     let mut order = [None; 3];
     for (k, n) in names.iter().enumerate() {
         let slot = match *n {
-            "theta" => 0,
+            // Data Exchange names the frame axis of flats and darks `theta_white`, `theta_dark`.
+            "theta" | "theta_white" | "theta_dark" => 0,
             "y" => 1,
             "x" => 2,
             other => {
                 return Err(format!(
-                    "unknown axis `{other}` in `{text}` (theta: views or frames, y: detector rows, x: columns)"
+                    "unknown axis `{other}` in `{text}` (theta, theta_white or theta_dark: views or frames, y: detector rows, x: columns)"
                 ));
             }
         };
@@ -209,6 +210,15 @@ mod tests {
         // A MATLAB views × cols sinogram, read column-major.
         assert_eq!(parse_axes("x:theta", 2), Ok([Some(1), None, Some(0)]));
         assert_eq!(parse_axes("y:x", 2), Ok([None, Some(0), Some(1)]));
+        // Data Exchange flats and darks.
+        assert_eq!(
+            parse_axes("theta_white:y:x", 3),
+            Ok([Some(0), Some(1), Some(2)])
+        );
+        assert_eq!(
+            parse_axes("theta_dark:y:x", 3),
+            Ok([Some(0), Some(1), Some(2)])
+        );
         assert!(parse_axes("theta:x", 3).unwrap_err().contains("has 3"));
         assert!(parse_axes("x:x", 2).unwrap_err().contains("twice"));
         assert!(parse_axes("theta:y", 2).unwrap_err().contains("no `x`"));

@@ -12,12 +12,14 @@
 //! training and test views. The full-view FDK reference needs a reconstruction method, so the
 //! `prism import` command computes it between the two (`prism_recon`).
 
+pub mod axis;
 pub mod config;
 pub mod hdf5;
 pub mod images;
 #[cfg(test)]
 mod tests;
 
+pub use axis::{AxisConfig, AxisEstimate, AxisMethod};
 pub use config::{ImportConfig, ReferenceKind};
 
 use crate::memory::{self, Footprint};
@@ -163,6 +165,7 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
             source_data: config.source_data.clone(),
             licence: config.licence.clone(),
             created_by: String::new(),
+            axis: None,
         },
         structural: None,
         materials: None,

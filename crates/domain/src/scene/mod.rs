@@ -288,6 +288,9 @@ pub struct Provenance {
     pub licence: Vec<String>,
     /// Person or pipeline that created the scene, and when.
     pub created_by: String,
+    /// The rotation axis, when the import estimated it (the geometry holds the value used).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub axis: Option<crate::import::AxisEstimate>,
 }
 
 /// The material volume fractions of a simulated scene's object on its grid: the truth behind

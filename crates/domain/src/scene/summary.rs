@@ -201,6 +201,9 @@ impl Scene {
                 prov.push((k, v.clone()));
             }
         }
+        if let Some(a) = &p.axis {
+            prov.push(("rotation axis", a.describe()));
+        }
         for s in &p.source_data {
             prov.push(("source", s.clone()));
         }

@@ -61,6 +61,7 @@ fn small_scene() -> Scene {
             source_data: vec!["random".into()],
             licence: vec!["CC0".into()],
             created_by: "tests".into(),
+            axis: None,
             overrides: vec!["geometry.views=13".into()],
         },
         structural: Some(structural),

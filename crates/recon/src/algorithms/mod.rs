@@ -9,6 +9,7 @@
 //! Conventions are the project's (`docs/geometry.md`): volumes `[z][y][x]` of μ in mm⁻¹,
 //! projections `[view][row][col]` of line integrals.
 
+pub mod axis;
 pub mod cgls;
 pub mod fdk;
 pub mod filter;
@@ -35,6 +36,8 @@ pub(crate) fn par_zip(a: &mut Array3<f32>, b: &Array3<f32>, f: impl Fn(f32, f32)
         .for_each(|(x, &y)| *x = f(*x, y));
 }
 
+#[cfg(test)]
+mod axis_tests;
 #[cfg(test)]
 mod iterative_tests;
 #[cfg(test)]

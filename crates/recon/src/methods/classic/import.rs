@@ -1,11 +1,13 @@
 //! A measured scan into a scene (`prism import`, and the imported scenes of `prism experiment`):
 //! the images read and converted ([`prism_domain::import::assemble`]), each channel's
+//! rotation axis estimated when asked (`axis:`), each channel's
 //! reference reconstructed by a classic method from every view it was measured at, then the
 //! training and test views kept.
 
 use super::{ClassicConfig, ClassicMethod, reconstruct_channel};
+use crate::algorithms::axis::estimate_axis;
 use crate::{Error, Result};
-use prism_domain::import::{ImportConfig, ReferenceKind, assemble};
+use prism_domain::import::{AxisMethod, ImportConfig, ReferenceKind, assemble};
 use prism_domain::observe::{Level, Observer};
 use prism_domain::scene::Scene;
 use std::path::Path;
@@ -93,6 +95,16 @@ pub fn import_full(
         }
     }
     let mut scene = full.scene;
+    if config.axis.method != AxisMethod::Given {
+        let estimate =
+            estimate_axis(&scene, &config.axis, observer).map_err(|e| e.under("axis"))?;
+        observer.note(
+            Level::Info,
+            &format!("rotation axis: {}", estimate.describe()),
+        );
+        scene.geometry.detector.offset_u = estimate.offset_u;
+        scene.provenance.axis = Some(estimate);
+    }
     let n = scene.n_views();
     if let Some(references) = references {
         let mut volumes = Vec::with_capacity(references.len());
