@@ -5,7 +5,7 @@
 
 use crate::progress::Bars;
 use anyhow::Context;
-use prism_domain::import::{AxisConfig, AxisMethod, ImportConfig, assemble, footprint};
+use prism_domain::import::{AxisConfig, AxisMethod, assemble};
 use prism_domain::observe::Observer;
 use prism_recon::algorithms::axis::{
     AxisMetric, CentralSinogram, Opposing, Sharpness, estimate_axis, resolve,
@@ -36,16 +36,12 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(&args.config)
-        .with_context(|| format!("reading {}", args.config.display()))?;
-    let overrides = args.set.overrides()?;
-    let config: ImportConfig = prism_domain::yaml::parse_with(&text, &args.config, &overrides)?;
-    let base = args.config.parent().unwrap_or(std::path::Path::new("."));
-    let footprint = footprint(&config, base).map_err(|e| e.in_file(&args.config))?;
-    let what = format!("reading {}", args.config.display());
-    if !args.memory.proceed(&args.config, &what, &footprint)? {
+    let Some(crate::import::Read { config, text, .. }) =
+        crate::import::read_config(&args.config, &args.set, &args.memory, "reading")?
+    else {
         return Ok(());
-    }
+    };
+    let base = args.config.parent().unwrap_or(std::path::Path::new("."));
     let mut axis: AxisConfig = config.axis;
     if let Some(m) = &args.method {
         axis.method = match m.as_str() {
@@ -69,8 +65,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .scene;
     let d = &scene.geometry.detector;
     let bars = Bars::new();
-    let estimate =
-        estimate_axis(&scene, &axis, &bars).map_err(|e| e.under("axis").in_file(&args.config))?;
+    let estimate = estimate_axis(&scene, &axis, &bars).map_err(|e| e.in_file(&args.config))?;
     if let Some(path) = &args.scan {
         write_scan(&scene, &axis, args.step, path, &bars)?;
     }

@@ -6,8 +6,9 @@
 use crate::progress::Bars;
 use anyhow::Context;
 use prism_domain::import::{ImportConfig, footprint};
+use prism_domain::yaml::Overrides;
 use prism_recon::methods::classic::import::{import_scene, reference_configs};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -22,17 +23,48 @@ pub struct Args {
     set: crate::args::SetArgs,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(&args.config)
-        .with_context(|| format!("reading {}", args.config.display()))?;
-    let overrides = args.set.overrides()?;
-    let config: ImportConfig = prism_domain::yaml::parse_with(&text, &args.config, &overrides)?;
-    let base = args.config.parent().unwrap_or(std::path::Path::new("."));
-    let footprint = footprint(&config, base).map_err(|e| e.in_file(&args.config))?;
-    let what = format!("importing {}", args.config.display());
-    if !args.memory.proceed(&args.config, &what, &footprint)? {
-        return Ok(());
+/// An import config read with its overrides: the config, its text and the overrides.
+pub struct Read {
+    pub config: ImportConfig,
+    pub text: String,
+    pub overrides: Overrides,
+}
+
+/// Read and check `path` with `set`'s overrides, and its memory estimate against `memory`
+/// (`doing` names the work in the refusal); `None` after a dry run.
+pub fn read_config(
+    path: &Path,
+    set: &crate::args::SetArgs,
+    memory: &crate::args::MemoryArgs,
+    doing: &str,
+) -> anyhow::Result<Option<Read>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let overrides = set.overrides()?;
+    let config: ImportConfig = prism_domain::yaml::parse_with(&text, path, &overrides)?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let footprint = footprint(&config, base).map_err(|e| e.in_file(path))?;
+    let what = format!("{doing} {}", path.display());
+    if !memory.proceed(path, &what, &footprint)? {
+        return Ok(None);
     }
+    Ok(Some(Read {
+        config,
+        text,
+        overrides,
+    }))
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let Some(Read {
+        config,
+        text,
+        overrides,
+    }) = read_config(&args.config, &args.set, &args.memory, "importing")?
+    else {
+        return Ok(());
+    };
+    let base = args.config.parent().unwrap_or(Path::new("."));
     let bars = Bars::new();
     let references = reference_configs(&config, base)?;
     let mut scene = import_scene(&config, base, &text, references.as_deref(), &bars)

@@ -96,8 +96,7 @@ pub fn import_full(
     }
     let mut scene = full.scene;
     if config.axis.method != AxisMethod::Given {
-        let estimate =
-            estimate_axis(&scene, &config.axis, observer).map_err(|e| e.under("axis"))?;
+        let estimate = estimate_axis(&scene, &config.axis, observer)?;
         observer.note(
             Level::Info,
             &format!("rotation axis: {}", estimate.describe()),
