@@ -92,6 +92,7 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
         "| Average PSNR↑",
         "4D-SG against R²-Gaussian:",
         "Equal wall time",
+        "| Method | Phantom 95 % | 99 % | p4 95 % | 99 % |",
         "(noise)",
         "i0-1e4",
         " ± ",

@@ -116,6 +116,20 @@ impl Curve {
         }
         c.last().map(|q| q.1)
     }
+
+    /// The training time at which the mean PSNR first reaches `fraction` of its last value
+    /// (dB), linearly interpolated between evaluations; the first point's time when it is
+    /// already there; `None` for an empty curve.
+    pub fn time_to(&self, fraction: f64) -> Option<f64> {
+        let c = &self.mean;
+        let target = fraction * c.last()?.1;
+        let hit = c.iter().position(|q| q.1 >= target)?;
+        if hit == 0 {
+            return Some(c[0].0);
+        }
+        let ((t0, p0), (t1, p1)) = (c[hit - 1], c[hit]);
+        Some(t0 + (target - p0) / (p1 - p0) * (t1 - t0))
+    }
 }
 
 #[cfg(test)]
@@ -145,6 +159,29 @@ mod tests {
         assert_eq!(c.at(14.0), Some(30.5));
         assert_eq!(c.at(1.0), None);
         assert_eq!(c.at(99.0), Some(32.0));
+    }
+
+    #[test]
+    fn time_to_quality_is_the_first_crossing_of_a_fraction_of_the_last_psnr() {
+        let c = Curve {
+            mean: vec![
+                (1.0, 10.0),
+                (2.0, 20.0),
+                (4.0, 30.0),
+                (5.0, 29.0),
+                (8.0, 31.0),
+            ],
+            structural: Vec::new(),
+        };
+        // 95 % of 31 dB = 29.45 dB, first reached between 2 s (20 dB) and 4 s (30 dB); 99 % =
+        // 30.69 dB only between 5 s (29 dB, after a dip) and 8 s.
+        let t95 = c.time_to(0.95).unwrap();
+        assert!((t95 - (2.0 + 9.45 / 10.0 * 2.0)).abs() < 1e-12, "{t95}");
+        let t99 = c.time_to(0.99).unwrap();
+        assert!((t99 - (5.0 + 1.69 / 2.0 * 3.0)).abs() < 1e-12, "{t99}");
+        assert_eq!(c.time_to(0.1), Some(1.0));
+        assert_eq!(c.time_to(1.0), Some(8.0));
+        assert_eq!(Curve::default().time_to(0.95), None);
     }
 
     #[test]

@@ -70,6 +70,7 @@ pub(crate) fn table(ctx: &mut Context, i: usize) -> Result<String> {
         let t = Table::new(suite, &spec.scenes, &spec.methods, &sel);
         let _ = writeln!(md, "### {views} views, noise `{noise}`\n\n{}", t.markdown());
         let _ = writeln!(md, "Training time:\n\n{}", t.times_markdown());
+        md.push_str(&time_to_quality(ctx, i, *views, noise));
         for a in &four {
             if let Some(b) = &r2
                 && let Some(m) = t.margins_markdown(a, b)
@@ -150,6 +151,62 @@ fn equal_time(ctx: &Context, i: usize, views: usize, noise: &str, a: &str, b: &s
         );
     }
     md.push('\n');
+    md
+}
+
+/// Per method and scene, the training time at which its mean PSNR curve first reaches 95 % and
+/// 99 % of its last value: "faster" stated at equal quality. Methods without a curve (the classic
+/// ones) are left out; no table when none has one.
+fn time_to_quality(ctx: &Context, i: usize, views: usize, noise: &str) -> String {
+    let st = &ctx.plan.studies[i];
+    let seed = st.spec.seeds[0];
+    let mut body = String::new();
+    for method in &st.spec.methods {
+        let cells: Vec<Option<Curve>> = st
+            .spec
+            .scenes
+            .iter()
+            .map(|scene| {
+                let p = st.points.iter().find(|p| {
+                    &p.scene == scene
+                        && &p.method == method
+                        && p.views == views
+                        && p.noise == noise
+                        && p.seed == seed
+                })?;
+                Curve::load(&ctx.plan.run_dir(ctx.out, p.run))
+                    .ok()
+                    .filter(|c| !c.mean.is_empty())
+            })
+            .collect();
+        if cells.iter().all(Option::is_none) {
+            continue;
+        }
+        let mut line = format!("| {} |", label(ctx, method));
+        for c in &cells {
+            for q in [0.95, 0.99] {
+                let t = c.as_ref().and_then(|c| c.time_to(q));
+                let _ = write!(line, " {} |", t.map_or("–".into(), seconds));
+            }
+        }
+        let _ = writeln!(body, "{line}");
+    }
+    if body.is_empty() {
+        return String::new();
+    }
+    let mut md = format!(
+        "Time to quality (seed {seed}): the training time at which each method's mean PSNR first \
+         reaches 95 % and 99 % of its last evaluated value (in dB, linearly interpolated between \
+         evaluations; per-channel methods as every channel stopped at the same iteration).\n\n\
+         | Method |"
+    );
+    let mut rule = String::from("|---|");
+    for scene in &st.spec.scenes {
+        let name = ctx.loaded.suite.scene_label(scene);
+        let _ = write!(md, " {name} 95 % | 99 % |");
+        rule.push_str("---:|---:|");
+    }
+    let _ = write!(md, "\n{rule}\n{body}\n");
     md
 }
 
