@@ -197,7 +197,9 @@ fn time_to_quality(ctx: &Context, i: usize, views: usize, noise: &str) -> String
     let mut md = format!(
         "Time to quality (seed {seed}): the training time at which each method's mean PSNR first \
          reaches 95 % and 99 % of its last evaluated value (in dB, linearly interpolated between \
-         evaluations; per-channel methods as every channel stopped at the same iteration).\n\n\
+         evaluations; per-channel methods as every channel stopped at the same iteration; 4D-SG's \
+         curve starts with stage 2, so its times include all of stage 1). Each method against its \
+         own last value: a method that stops improving early reaches it early.\n\n\
          | Method |"
     );
     let mut rule = String::from("|---|");
