@@ -230,10 +230,12 @@ impl Table {
 
 /// Seconds for tables: `12.3` below a minute, `4 min 05 s` above.
 pub fn seconds(s: f64) -> String {
-    if s < 60.0 {
+    if s < 59.95 {
         format!("{s:.1} s")
     } else {
-        format!("{} min {:02.0} s", (s / 60.0).floor(), s % 60.0)
+        // Whole seconds first, so 119.7 s is 2 min 00 s, not 1 min 60 s.
+        let whole = s.round() as u64;
+        format!("{} min {:02} s", whole / 60, whole % 60)
     }
 }
 
@@ -306,5 +308,8 @@ mod tests {
         );
         assert!(margins.contains("0.21×"), "time ratio 31/150: {margins}");
         assert_eq!(seconds(125.0), "2 min 05 s");
+        assert_eq!(seconds(119.7), "2 min 00 s");
+        assert_eq!(seconds(59.97), "1 min 00 s");
+        assert_eq!(seconds(59.9), "59.9 s");
     }
 }
