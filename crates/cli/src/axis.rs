@@ -10,7 +10,6 @@ use prism_domain::observe::Observer;
 use prism_recon::algorithms::axis::{
     AxisMetric, CentralSinogram, Opposing, Sharpness, estimate_axis, resolve,
 };
-use std::io::Write;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -44,12 +43,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let base = args.config.parent().unwrap_or(std::path::Path::new("."));
     let mut axis: AxisConfig = config.axis;
     if let Some(m) = &args.method {
-        axis.method = match m.as_str() {
-            "auto" => AxisMethod::Auto,
-            "opposing" => AxisMethod::Opposing,
-            "sharpness" => AxisMethod::Sharpness,
-            _ => anyhow::bail!("--method {m}: expected auto, opposing or sharpness"),
-        };
+        axis.method = m.parse().map_err(|e| anyhow::anyhow!("--method {e}"))?;
     }
     if axis.method == AxisMethod::Given {
         axis.method = AxisMethod::Auto;
@@ -71,9 +65,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     bars.finish();
     println!("{}: {}", scene.name, estimate.describe());
+    let mut estimated = scene.geometry.clone();
+    estimated.detector.offset_u = estimate.offset_u;
     println!(
         "the axis projects onto column {:.2} of 0…{} (the detector centre is {:.1})",
-        (d.cols as f64 - 1.0) / 2.0 - estimate.offset_px,
+        estimated.camera_at(0.0).cx,
         d.cols - 1,
         (d.cols as f64 - 1.0) / 2.0
     );
@@ -124,9 +120,5 @@ fn write_scan(
         out += &format!("{x:.4},{:.6},{sharpness},{mse}\n", x * d.pitch_u);
         bars.progress(i as u64 + 1, "");
     }
-    let mut f =
-        std::fs::File::create(path).with_context(|| format!("writing {}", path.display()))?;
-    f.write_all(out.as_bytes())
-        .with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    std::fs::write(path, out).with_context(|| format!("writing {}", path.display()))
 }

@@ -19,7 +19,8 @@ pub mod images;
 #[cfg(test)]
 mod tests;
 
-pub use axis::{AxisConfig, AxisEstimate, AxisMethod};
+pub use crate::scene::{AxisEstimate, AxisMethod};
+pub use axis::AxisConfig;
 pub use config::{ImportConfig, ReferenceKind};
 
 use crate::memory::{self, Footprint};

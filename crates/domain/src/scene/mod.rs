@@ -11,12 +11,14 @@
 //! * channels are ordered along the spectral axis (strictly increasing
 //!   [`SpectralCoordinate::value`]) and carry τ ∈ [0, 1], the coordinate normalised over the scene.
 
+mod axis;
 mod gains;
 pub(crate) mod io;
 pub(crate) mod npy;
 mod r2;
 mod summary;
 
+pub use axis::{AxisEstimate, AxisMethod};
 pub use io::{FORMAT_VERSION, SCENE_FILE};
 pub use r2::R2_META_FILE;
 
@@ -290,7 +292,7 @@ pub struct Provenance {
     pub created_by: String,
     /// The rotation axis, when the import estimated it (the geometry holds the value used).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub axis: Option<crate::import::AxisEstimate>,
+    pub axis: Option<AxisEstimate>,
 }
 
 /// The material volume fractions of a simulated scene's object on its grid: the truth behind

@@ -5,9 +5,10 @@
 mod pictures;
 mod sections;
 pub mod table;
+mod timing;
 
 use crate::execute::{Failure, read_record};
-use crate::plan::Plan;
+use crate::plan::{Plan, StudyPlan, StudyPoint};
 use crate::results::{Row, collect, write_csv};
 use crate::suite::{LoadedSuite, StudyKind};
 use crate::{Error, Result};
@@ -256,4 +257,42 @@ fn header(ctx: &Context) -> String {
         md.push_str("*Data used in this work were obtained from The Cancer Imaging Archive (TCIA), collections CPTAC-PDA, CPTAC-LSCC and TCGA-OV.*\n\n");
     }
     md
+}
+
+/// A method's label in the suite.
+fn label(ctx: &Context, method: &str) -> String {
+    ctx.loaded.suite.method_label(method).to_string()
+}
+
+/// The cell of study `st` for one scene, method, view count, noise level and seed.
+fn point<'a>(
+    st: &'a StudyPlan,
+    scene: &str,
+    method: &str,
+    views: usize,
+    noise: &str,
+    seed: u64,
+) -> Option<&'a StudyPoint> {
+    st.points.iter().find(|p| {
+        p.scene == scene
+            && p.method == method
+            && p.views == views
+            && p.noise == noise
+            && p.seed == seed
+    })
+}
+
+/// The channel-mean row of cell `p` among `rows`.
+fn mean_row<'a>(rows: &[&'a Row], p: &StudyPoint) -> Option<&'a Row> {
+    rows.iter()
+        .find(|r| {
+            r.scene == p.scene
+                && r.method == p.method
+                && r.views == p.views
+                && r.noise == p.noise
+                && r.seed == p.seed
+                && r.variant.is_empty()
+                && r.channel == "mean"
+        })
+        .copied()
 }

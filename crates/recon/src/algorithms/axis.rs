@@ -18,8 +18,9 @@
 //! The search: a coarse scan over the given offset ± `range_px` (every column for opposing
 //! views; every other column on a slice coarsened to at most 160² voxels for sharpness, whose
 //! basin is several columns wide), a fine scan at ¼ column over ±1.5 columns around its
-//! minimum, and the vertex of the parabola through the fine minimum and its neighbours. The uncertainty is the standard error over four disjoint view subsets (views
-//! `k ≡ j mod 4`), each searched finely around the whole-scan estimate.
+//! minimum, and the vertex of the parabola through the fine minimum and its neighbours. The
+//! uncertainty is the standard error over four disjoint view subsets (views `k ≡ j mod 4`),
+//! each searched around the whole-scan estimate (± two coarse steps, then finely).
 
 use super::fdk::fdk;
 use super::filter::Window;
@@ -42,6 +43,8 @@ const COARSE_SIDE: usize = 160;
 const FINE_SAMPLES: usize = 13;
 const FINE_STEP: f64 = 0.25;
 const FINE_SIDE: usize = 512;
+/// A subset's search: the whole-scan estimate ± this many coarse steps, then refined.
+const SUBSET_STEPS: usize = 2;
 
 /// The sinogram of the plane z = 0 and a one-row geometry that holds it (a one-voxel slice).
 #[derive(Clone, Debug)]
@@ -337,9 +340,7 @@ impl<'a> Sharpness<'a> {
         }
         let mask: Vec<bool> = (0..v.ny * v.nx)
             .map(|i| {
-                let (iy, ix) = (i / v.nx, i % v.nx);
-                let x = v.offset[0] + (ix as f64 + 0.5 - v.nx as f64 / 2.0) * v.dx;
-                let y = v.offset[1] + (iy as f64 + 0.5 - v.ny as f64 / 2.0) * v.dy;
+                let [x, y, _] = v.voxel_centre(i % v.nx, i / v.nx, 0);
                 x * x + y * y < half * half
             })
             .collect();
@@ -422,7 +423,7 @@ impl AxisMetric for Sharpness<'_> {
 }
 
 /// The sample offsets and scores of a search.
-pub type Samples = Vec<(f64, f64)>;
+type Samples = Vec<(f64, f64)>;
 
 /// The minimum of `coarse` over `centre ± half` at `step`, refined: `fine` scanned at
 /// [`FINE_STEP`] around the coarse minimum and the vertex of the parabola through the fine
@@ -498,26 +499,25 @@ pub fn estimate_axis(
     };
     // Sharpness scans coarsely on a coarse slice (the entropy's basin is several columns wide)
     // and refines on the scene's own; opposing views cost the same at every step.
-    let (coarse, fine): (Box<dyn AxisMetric + '_>, Box<dyn AxisMetric + '_>) = match method {
-        AxisMethod::Opposing => (
-            Box::new(Opposing::new(&sino)?),
-            Box::new(Opposing::new(&sino)?),
-        ),
-        _ => (
-            Box::new(Sharpness::new(&sino, centre, range + 2.0, COARSE_SIDE)?),
-            Box::new(Sharpness::new(&sino, centre, range + 2.0, FINE_SIDE)?),
-        ),
-    };
-    let step = coarse_step(method);
-    let (best, at_edge) = minimise(
+    let (coarse, refined): (Box<dyn AxisMetric + '_>, Option<Box<dyn AxisMetric + '_>>) =
+        match method {
+            AxisMethod::Opposing => (Box::new(Opposing::new(&sino)?), None),
+            _ => (
+                Box::new(Sharpness::new(&sino, centre, range + 2.0, COARSE_SIDE)?),
+                Some(Box::new(Sharpness::new(
+                    &sino,
+                    centre,
+                    range + 2.0,
+                    FINE_SIDE,
+                )?)),
+            ),
+        };
+    let (coarse, fine) = (
         coarse.as_ref(),
-        fine.as_ref(),
-        None,
-        centre,
-        range,
-        step,
-        tick,
-    )?;
+        refined.as_deref().unwrap_or(coarse.as_ref()),
+    );
+    let step = coarse_step(method);
+    let (best, at_edge) = minimise(coarse, fine, None, centre, range, step, tick)?;
     if at_edge {
         return Err(Error::invalid(
             "axis.range_px",
@@ -529,8 +529,8 @@ pub fn estimate_axis(
     }
     let subsets = (0..SUBSETS)
         .map(|j| {
-            let (f, h) = (fine.as_ref(), 1.5 * step);
-            minimise(f, f, Some(j), best, h, step, tick).map(|(x, _)| x)
+            let half = SUBSET_STEPS as f64 * step;
+            minimise(fine, fine, Some(j), best, half, step, tick).map(|(x, _)| x)
         })
         .collect::<Result<Vec<f64>>>()?;
     let mean = subsets.iter().sum::<f64>() / SUBSETS as f64;
@@ -568,5 +568,5 @@ fn coarse_step(method: AxisMethod) -> f64 {
 /// (resolved).
 fn estimate_steps(config: &AxisConfig, method: AxisMethod, cols: usize) -> usize {
     let n = (config.range_for(cols) / coarse_step(method)).ceil() as usize;
-    (2 * n + 1) + FINE_SAMPLES + SUBSETS * (2 * 2 + 1 + FINE_SAMPLES)
+    (2 * n + 1) + FINE_SAMPLES + SUBSETS * (2 * SUBSET_STEPS + 1 + FINE_SAMPLES)
 }
