@@ -159,6 +159,47 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
     );
     let (ok, t) = prism(&["experiment", s, "-o", o, "--only", "sart", "--force"]);
     assert!(ok && t.contains("5 cells run"), "{t}");
+    // A scene's object mask changes only the scoring: its runs are scored again from their
+    // volumes, not retrained (the training log stays as it was).
+    let log = out.join("runs/p3-v3-shipped-s0/4dsg/log.jsonl");
+    let before = std::fs::read(&log).unwrap();
+    let roi = ["--set", "scenes.p3.roi={threshold: 0.2, erode_mm: 1.0}"];
+    let (ok, t) = prism(
+        &[
+            &[
+                "experiment",
+                s,
+                "-o",
+                o,
+                "--study",
+                "table",
+                "--only",
+                "p3",
+                "--dry-run",
+            ][..],
+            &roi[..],
+        ]
+        .concat(),
+    );
+    assert!(
+        ok && t.contains("runs/p3-v3-shipped-s0/4dsg  to score again"),
+        "{t}"
+    );
+    let (ok, t) = prism(
+        &[
+            &["experiment", s, "-o", o, "--study", "table", "--only", "p3"][..],
+            &roi[..],
+        ]
+        .concat(),
+    );
+    assert!(
+        ok && t.contains("4 cells run") && t.contains("scoring its volumes again"),
+        "{t}"
+    );
+    assert_eq!(std::fs::read(&log).unwrap(), before);
+    let metrics =
+        std::fs::read_to_string(out.join("runs/p3-v3-shipped-s0/4dsg/metrics.json")).unwrap();
+    assert!(metrics.contains("\"roi\": \"object mask"), "{metrics}");
     // collect rewrites the report; --set overrides the suite itself (and is validated).
     let (ok, t) = prism(&["experiment", "collect", s, "-o", o]);
     assert!(ok && t.contains("22 of 22 run cells finished"), "{t}");

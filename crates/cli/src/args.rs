@@ -12,6 +12,7 @@ use prism_recon::record::RunDir;
 use prism_recon::setup::Checkpointing;
 use prism_recon::setup::RunOptions;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// `--set key.path=value` overrides of a YAML config.
 #[derive(clap::Args)]
@@ -43,6 +44,10 @@ pub struct EvalArgs {
     /// fields of metrics.json are null.
     #[arg(long = "lpips-weights", value_name = "FILE")]
     pub lpips_weights: Option<PathBuf>,
+    /// Score inside the object only: the mask's settings as YAML, e.g.
+    /// `--eval-roi '{threshold: 0.1, erode_mm: 1.0}'` (fields in docs/metrics.md; `{}` the defaults).
+    #[arg(long = "eval-roi", value_name = "YAML")]
+    pub roi: Option<String>,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -67,12 +72,24 @@ impl EvalArgs {
             SlicesArg::Axial => SliceAxes::Axial,
             SlicesArg::All => SliceAxes::All,
         };
+        let roi = match &self.roi {
+            Some(text) => {
+                let spec: prism_domain::metrics::RoiSpec = prism_domain::yaml::parse_with(
+                    text,
+                    Path::new("--eval-roi"),
+                    &Overrides::default(),
+                )?;
+                spec.validate().map_err(|e| e.under("--eval-roi"))?;
+                Some(spec)
+            }
+            None => None,
+        };
         let lpips = match &self.lpips_weights {
-            Some(p) => Some((Lpips::load(p, &cpu_device())?, p.clone())),
+            Some(p) => Some(Arc::new((Lpips::load(p, &cpu_device())?, p.clone()))),
             None => None,
         };
         Ok(Evaluation {
-            protocol: Protocol { grid, slices },
+            protocol: Protocol { grid, slices, roi },
             lpips,
         })
     }

@@ -139,13 +139,14 @@ fn evaluation(loaded: &LoadedSuite) -> anyhow::Result<Evaluation> {
             } else {
                 SliceAxes::Axial
             },
+            roi: e.roi.clone(),
         },
         lpips: match &e.lpips {
-            Some(p) => Some((
+            Some(p) => Some(std::sync::Arc::new((
                 Lpips::load(p, &cpu_device())
                     .with_context(|| format!("{}: evaluation.lpips", loaded.file.display()))?,
                 p.clone(),
-            )),
+            ))),
             None => None,
         },
     })
@@ -303,6 +304,7 @@ fn dry_run(
     let state = |s: CellState| match s {
         CellState::Done => "done".to_string(),
         CellState::Missing => "to run".to_string(),
+        CellState::Rescore => "to score again (the evaluation changed)".to_string(),
         CellState::Changed(why) => format!("changed: {why}"),
     };
     let mark = |selected: bool, s: String| {

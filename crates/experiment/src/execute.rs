@@ -6,8 +6,9 @@
 //! Every cell directory is published atomically, so a directory that exists is finished. Each
 //! carries what it was made from (a scene's provenance: its config text and overrides; a run's
 //! `cell.json`: its scene's, the resolved method config and the evaluation), so a rerun skips
-//! finished cells, and refuses (or with `force`, redoes) cells whose inputs changed since. A cell
-//! that fails is recorded and the others go on.
+//! finished cells, and refuses (or with `force`, redoes) cells whose inputs changed since; a run
+//! whose only change is the evaluation is scored again from its volumes. A cell that fails is
+//! recorded and the others go on.
 
 use crate::plan::{CellKind, Plan, SCENES};
 use crate::suite::EvaluationSpec;
@@ -18,7 +19,7 @@ use prism_domain::scene::Scene;
 use prism_domain::simulate::{SimulateConfig, simulate};
 use prism_recon::MethodConfig;
 use prism_recon::device::DeviceChoice;
-use prism_recon::evaluate::Evaluation;
+use prism_recon::evaluate::{Evaluation, rescore};
 use prism_recon::methods::classic::import::{import_full, reference_configs, select_views};
 use prism_recon::methods::fourdsg::FourDsgMethod;
 use prism_recon::methods::fourdsg::ablation::ablate;
@@ -89,6 +90,8 @@ pub const CELL_RECORD: &str = "cell.json";
 pub enum CellState {
     Done,
     Missing,
+    /// Finished under other evaluation settings: its volumes are scored again (no retraining).
+    Rescore,
     /// Made from other inputs: what differs.
     Changed(String),
 }
@@ -151,9 +154,23 @@ pub fn cell_record(plan: &Plan, i: usize, options: &ExecOptions) -> Result<CellR
         scene_config: read_text(&scene.config)?,
         scene_overrides: scene.overrides.texts(),
         method_config: config.resolved_yaml()?,
-        evaluation: options.evaluation_spec.clone(),
+        evaluation: cell_evaluation(plan, i, options).0,
         execution: Some(options.execution()),
     })
+}
+
+/// The evaluation run cell `i` is scored under: the suite's, with its scene's object mask.
+pub fn cell_evaluation(
+    plan: &Plan,
+    i: usize,
+    options: &ExecOptions,
+) -> (EvaluationSpec, Evaluation) {
+    let roi = plan.scene_of(i).roi.clone();
+    let mut spec = options.evaluation_spec.clone();
+    spec.roi = roi.clone();
+    let mut eval = options.evaluation.clone();
+    eval.protocol.roi = roi;
+    (spec, eval)
 }
 
 /// The record of a finished run cell's directory, if it has a readable one.
@@ -185,6 +202,13 @@ pub fn run_state(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Re
     } else if recorded.method_config != now.method_config {
         "the method's resolved config"
     } else if recorded.evaluation != now.evaluation {
+        // Only the scoring changed: a finished run is scored again from its volumes.
+        if plan.runs[i].kind == CellKind::Run
+            && dir.join(RunDir::METRICS).exists()
+            && !dir.join(RunDir::HOLDOUT).exists()
+        {
+            return Ok(CellState::Rescore);
+        }
         "the evaluation settings"
     } else {
         return Ok(CellState::Done);
@@ -276,6 +300,7 @@ pub fn run_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Res
     match run_state(plan, out, i, options)? {
         CellState::Done => return Ok(false),
         CellState::Changed(why) if !options.force => return Err(changed(why)),
+        CellState::Rescore => return rescore_cell(plan, out, i, options).map(|()| true),
         _ => {}
     }
     let scene_dir = plan.scene_dir(out, cell.scene);
@@ -299,11 +324,12 @@ pub fn run_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Res
     create_parent(&target)?;
     let mut dir = RunDir::create(&target, true)?;
     dir.write_json(CELL_RECORD, &record)?;
+    let evaluation = cell_evaluation(plan, i, options).1;
     let run_options = RunOptions {
         device: config.device().device()?,
         from_geometry: None,
         observer: options.observer,
-        evaluation: options.evaluation,
+        evaluation: &evaluation,
         checkpoint: None,
     };
     match (cell.kind, &config) {
@@ -321,6 +347,32 @@ pub fn run_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Res
         }
     }
     Ok(true)
+}
+
+/// Score finished run cell `i` again under its evaluation now, then record that evaluation in its
+/// `cell.json` (each file replaced atomically).
+fn rescore_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Result<()> {
+    let dir = plan.run_dir(out, i);
+    options.observer.note(
+        Level::Info,
+        &format!(
+            "run {}: the evaluation settings changed; scoring its volumes again",
+            plan.runs[i].key
+        ),
+    );
+    let scene = Scene::load(plan.scene_dir(out, plan.runs[i].scene))?;
+    let (spec, evaluation) = cell_evaluation(plan, i, options);
+    rescore(&dir, &scene, &evaluation)?;
+    let path = dir.join(CELL_RECORD);
+    let mut record: CellRecord = serde_json::from_str(&read_text(&path)?)
+        .map_err(|e| Error::field(&path, ".", e.to_string()))?;
+    record.evaluation = spec;
+    let json = serde_json::to_string_pretty(&record)
+        .map_err(|e| Error::field(&path, ".", e.to_string()))?;
+    let staged = dir.join(format!(".{CELL_RECORD}.rescored"));
+    std::fs::write(&staged, json + "\n").map_err(|e| Error::io(&staged, e))?;
+    std::fs::rename(&staged, &path).map_err(|e| Error::io(&path, e))?;
+    Ok(())
 }
 
 fn changed(why: String) -> Error {

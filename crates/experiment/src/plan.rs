@@ -7,6 +7,7 @@
 use crate::suite::{LoadedSuite, SceneSpec, StudyKind, StudySpec};
 use crate::{Error, Result};
 use prism_domain::import::ImportConfig;
+use prism_domain::metrics::RoiSpec;
 use prism_domain::simulate::SimulateConfig;
 use prism_domain::yaml::Overrides;
 use prism_recon::methods::fourdsg::ablation::Study;
@@ -84,6 +85,8 @@ pub struct SceneCell {
     /// The scene's `set`, the noise level's, then `geometry.views` and `seed` (an imported
     /// scene: its `set`, then `select.views`).
     pub overrides: Overrides,
+    /// The object mask its runs are scored in (the scene's `roi`, else the suite's).
+    pub roi: Option<RoiSpec>,
 }
 
 /// What a run cell does.
@@ -214,6 +217,7 @@ impl Plan {
                                         config: spec.config.clone(),
                                         import: spec.import,
                                         overrides,
+                                        roi: spec.roi.clone().or_else(|| s.evaluation.roi.clone()),
                                     });
                                     scene_index.insert(key.clone(), scenes.len() - 1);
                                     scenes.len() - 1

@@ -3,6 +3,7 @@
 //! seeds. Paths are relative to the suite file. See `docs/experiments.md` for the format.
 
 use crate::{Error, Result};
+use prism_domain::metrics::RoiSpec;
 use prism_domain::yaml::{self, Overrides};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -47,6 +48,9 @@ pub struct SceneSpec {
     pub label: Option<String>,
     #[serde(default)]
     pub set: Vec<String>,
+    /// Score this scene's runs inside its object mask (overrides `evaluation.roi`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub roi: Option<RoiSpec>,
 }
 
 /// A method: a reconstruction config (`configs/recon/*.yaml`) and overrides of it.
@@ -73,6 +77,10 @@ pub struct EvaluationSpec {
     /// LPIPS weights (`scripts/lpips_weights.py`); absent: no LPIPS column.
     #[serde(default)]
     pub lpips: Option<PathBuf>,
+    /// Score inside each scene's object mask (`docs/metrics.md`); absent: the whole grid. A
+    /// scene's own `roi` takes precedence.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub roi: Option<RoiSpec>,
 }
 
 /// What a study measures and therefore which cells it runs and what it reports.

@@ -3,10 +3,12 @@
 //! conventions and the scikit-image cross-check).
 
 pub mod psnr;
+pub mod roi;
 pub mod ssim;
 
 pub use psnr::psnr;
-pub use ssim::{Border, Ssim3d, SsimParams, ssim_2d, ssim_3d};
+pub use roi::{Roi, RoiSpec};
+pub use ssim::{Border, Ssim3d, SsimParams, ssim_2d, ssim_3d, ssim_map};
 
 use crate::{Error, Result};
 use ndarray::{ArrayView3, Axis};

@@ -123,6 +123,25 @@ fn check_params(p: &SsimParams) -> Result<()> {
 
 /// Mean SSIM of two equally shaped 2-D images.
 pub fn ssim_2d(a: ArrayView2<f32>, b: ArrayView2<f32>, p: &SsimParams) -> Result<f64> {
+    let map = ssim_map(a, b, p)?;
+    let (h, w) = map.dim();
+    let (r0, r1, c0, c1) = match p.border {
+        Border::ZeroPad => (0, h, 0, w),
+        Border::Crop => (RADIUS, h - RADIUS, RADIUS, w - RADIUS),
+    };
+    let mut sum = 0.0;
+    for i in r0..r1 {
+        for j in c0..c1 {
+            sum += map[[i, j]];
+        }
+    }
+    Ok(sum / ((r1 - r0) * (c1 - c0)) as f64)
+}
+
+/// The SSIM map of two equally shaped 2-D images: the local SSIM at every pixel, the window
+/// zero-padded at the border (the caller averages it over the pixels it scores; with
+/// [`Border::Crop`] the image must hold the window).
+pub fn ssim_map(a: ArrayView2<f32>, b: ArrayView2<f32>, p: &SsimParams) -> Result<Array2<f64>> {
     check_params(p)?;
     if a.shape() != b.shape() {
         return Err(Error::invalid(
@@ -154,22 +173,13 @@ pub fn ssim_2d(a: ArrayView2<f32>, b: ArrayView2<f32>, p: &SsimParams) -> Result
     let mxy = blur(&(&x * &y), &win);
     let c1 = (0.01 * p.data_range).powi(2);
     let c2 = (0.03 * p.data_range).powi(2);
-    let (r0, r1, c0, c1_) = match p.border {
-        Border::ZeroPad => (0, h, 0, w),
-        Border::Crop => (RADIUS, h - RADIUS, RADIUS, w - RADIUS),
-    };
-    let mut sum = 0.0;
-    for i in r0..r1 {
-        for j in c0..c1_ {
-            let (ux, uy) = (mx[[i, j]], my[[i, j]]);
-            let vx = mxx[[i, j]] - ux * ux;
-            let vy = myy[[i, j]] - uy * uy;
-            let vxy = mxy[[i, j]] - ux * uy;
-            sum += ((2.0 * ux * uy + c1) * (2.0 * vxy + c2))
-                / ((ux * ux + uy * uy + c1) * (vx + vy + c2));
-        }
-    }
-    Ok(sum / ((r1 - r0) * (c1_ - c0)) as f64)
+    Ok(Array2::from_shape_fn((h, w), |(i, j)| {
+        let (ux, uy) = (mx[[i, j]], my[[i, j]]);
+        let vx = mxx[[i, j]] - ux * ux;
+        let vy = myy[[i, j]] - uy * uy;
+        let vxy = mxy[[i, j]] - ux * uy;
+        ((2.0 * ux * uy + c1) * (2.0 * vxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2))
+    }))
 }
 
 /// 3-D SSIM of `pred` against `truth` (both `[z][y][x]`), R²-Gaussian style (module docs).

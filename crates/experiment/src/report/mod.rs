@@ -250,6 +250,16 @@ fn header(ctx: &Context) -> String {
             None => "not computed: the suite names no LPIPS weights (`evaluation.lpips`)".into(),
         }
     );
+    for (name, sc) in &s.scenes {
+        if let Some(r) = sc.roi.as_ref().or(e.roi.as_ref()) {
+            let _ = writeln!(
+                md,
+                "Scene `{name}` is scored inside its object mask: {} (`roi`; each run's \
+                 `metrics.json` gives the mask's size).\n",
+                r.describe()
+            );
+        }
+    }
     if s.scenes
         .values()
         .any(|sc| std::fs::read_to_string(&sc.config).is_ok_and(|t| t.contains("TCIA")))

@@ -11,12 +11,14 @@ pub mod protocol;
 
 pub use protocol::{Evaluation, Protocol, ProtocolRecord, Scores, SliceAxes, score};
 
+use crate::record::RunDir;
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView3, Axis};
 use prism_domain::metrics::{SsimParams, projection_metrics, psnr, ssim_3d};
 use prism_domain::projector::Joseph;
 use prism_domain::scene::{Scene, SpectralCoordinate};
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// Scores of one channel.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -40,6 +42,22 @@ pub struct MeanMetrics {
     pub psnr_slices: f64,
     pub ssim_slices: f64,
     pub lpips: Option<f64>,
+}
+
+impl MeanMetrics {
+    /// The means of `channels`' scores (LPIPS only when every channel has one).
+    pub fn of(channels: &[ChannelMetrics]) -> MeanMetrics {
+        let n = channels.len() as f64;
+        let mean = |f: fn(&Scores) -> f64| channels.iter().map(|c| f(&c.scores)).sum::<f64>() / n;
+        let lpips: Option<Vec<f64>> = channels.iter().map(|c| c.scores.lpips).collect();
+        MeanMetrics {
+            psnr: mean(|s| s.psnr),
+            ssim: mean(|s| s.ssim),
+            psnr_slices: mean(|s| s.psnr_slices),
+            ssim_slices: mean(|s| s.ssim_slices),
+            lpips: lpips.map(|v| v.iter().sum::<f64>() / n),
+        }
+    }
 }
 
 /// Contents of `metrics.json`.
@@ -88,10 +106,16 @@ pub fn metrics(scene: &Scene, r: &Reconstruction, eval: &Evaluation) -> Result<O
     let Some(refs) = &scene.references else {
         return Ok(None);
     };
+    let roi = eval.roi(scene)?;
     let mut channels = Vec::new();
     for (c, ch) in scene.channels.iter().enumerate() {
-        let scores = score(r.volumes[c].view(), refs.index_axis(Axis(0), c), eval)
-            .map_err(|e| e.under(&format!("channel `{}`", ch.label)))?;
+        let scores = score(
+            r.volumes[c].view(),
+            refs.index_axis(Axis(0), c),
+            eval,
+            roi.as_ref(),
+        )
+        .map_err(|e| e.under(&format!("channel `{}`", ch.label)))?;
         let (proj_psnr, proj_ssim) = match test_projection_metrics(scene, c, r)? {
             Some((a, b)) => (Some(a), Some(b)),
             None => (None, None),
@@ -105,9 +129,6 @@ pub fn metrics(scene: &Scene, r: &Reconstruction, eval: &Evaluation) -> Result<O
             proj_ssim,
         });
     }
-    let n = channels.len() as f64;
-    let mean = |f: fn(&Scores) -> f64| channels.iter().map(|c| f(&c.scores)).sum::<f64>() / n;
-    let lpips: Option<Vec<f64>> = channels.iter().map(|c| c.scores.lpips).collect();
     let projections = match &r.projector {
         TestProjector::Reproject => "Joseph re-projection of the reconstructed volume".to_string(),
         TestProjector::Render { what, .. } => what.clone(),
@@ -116,17 +137,74 @@ pub fn metrics(scene: &Scene, r: &Reconstruction, eval: &Evaluation) -> Result<O
         method: r.method.to_string(),
         scene: scene.name.clone(),
         wall_s: r.wall_s,
-        mean: MeanMetrics {
-            psnr: mean(|s| s.psnr),
-            ssim: mean(|s| s.ssim),
-            psnr_slices: mean(|s| s.psnr_slices),
-            ssim_slices: mean(|s| s.ssim_slices),
-            lpips: lpips.map(|v| v.iter().sum::<f64>() / n),
-        },
+        mean: MeanMetrics::of(&channels),
         channels,
-        protocol: eval.record(r.volumes[0].shape(), &projections),
+        protocol: eval.record(r.volumes[0].shape(), &projections, roi.as_ref()),
         unseen_fraction: r.unseen,
     }))
+}
+
+/// Score the volumes of the finished run in `dir` again under `eval` (a changed protocol: the
+/// region of interest, the grid, the slices) and replace its `metrics.json`, keeping what the
+/// protocol does not touch (test-view projection metrics, times, the unseen fraction). Refused
+/// for a run with held-out channels (their volumes are not kept) or without references.
+pub fn rescore(dir: &Path, scene: &Scene, eval: &Evaluation) -> Result<Metrics> {
+    if dir.join(RunDir::HOLDOUT).exists() {
+        return Err(Error::invalid(
+            "run_dir",
+            format!(
+                "{} has held-out channels, whose predicted volumes are not kept: run it again",
+                dir.display()
+            ),
+        ));
+    }
+    let Some(refs) = &scene.references else {
+        return Err(Error::invalid(
+            "references",
+            "the scene has none to score against",
+        ));
+    };
+    let path = dir.join(RunDir::METRICS);
+    let old: Metrics = RunDir::read_json(&path)?;
+    let roi = eval.roi(scene)?;
+    let shape = scene.geometry.volume.shape_zyx();
+    let mut channels = Vec::new();
+    for ch in &old.channels {
+        let c = scene
+            .channels
+            .iter()
+            .position(|s| s.label == ch.label)
+            .ok_or_else(|| {
+                Error::field(
+                    &path,
+                    "channels",
+                    format!("channel `{}` is not the scene's", ch.label),
+                )
+            })?;
+        let file = dir.join(RunDir::volume_file(&ch.label));
+        let vol: Array3<f32> = ndarray_npy::read_npy(&file)
+            .map_err(|e| Error::field(&file, "data", format!("reading the volume failed: {e}")))?;
+        prism_domain::error::ensure_shape("volume", vol.shape(), &shape, "the scene's grid")
+            .map_err(|e| Error::from(e).in_file(&file))?;
+        let scores = score(vol.view(), refs.index_axis(Axis(0), c), eval, roi.as_ref())
+            .map_err(|e| e.under(&format!("channel `{}`", ch.label)))?;
+        channels.push(ChannelMetrics {
+            scores,
+            ..ch.clone()
+        });
+    }
+    let metrics = Metrics {
+        mean: MeanMetrics::of(&channels),
+        channels,
+        protocol: eval.record(&shape, &old.protocol.projections, roi.as_ref()),
+        ..old
+    };
+    let json = serde_json::to_string_pretty(&metrics)
+        .map_err(|e| Error::field(&path, ".", e.to_string()))?;
+    let staged = dir.join(format!(".{}.rescored", RunDir::METRICS));
+    std::fs::write(&staged, json + "\n").map_err(|e| Error::io(&staged, e))?;
+    std::fs::rename(&staged, &path).map_err(|e| Error::io(&path, e))?;
+    Ok(metrics)
 }
 
 /// Projection metrics of channel `c` on the scene's available test views, if any.

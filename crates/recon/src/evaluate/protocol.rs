@@ -12,15 +12,21 @@
 //!    whose reference slice is not all zero, averaged. A slice identical to its reference counts
 //!    as [`PSNR_CAP`] dB. LPIPS sees each slice clipped to [0, 1].
 //!
+//! 5. **Region of interest** (optional, `roi`): every metric above restricted to the object mask
+//!    of [`prism_domain::metrics::roi`] (PSNR over the mask's voxels, SSIM maps averaged over its
+//!    pixels); LPIPS still sees whole slices (those holding a mask pixel).
+//!
 //! The paper names neither the slice axes nor the resampling; both are recorded in
 //! `metrics.json` (`protocol`), so a table states what it measured.
 
 use super::lpips::Lpips;
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView2, ArrayView3, Axis};
-use prism_domain::metrics::{Border, SsimParams, psnr, ssim_2d, ssim_3d};
+use prism_domain::metrics::{Border, Roi, RoiSpec, SsimParams, psnr, ssim_2d, ssim_3d, ssim_map};
+use prism_domain::scene::Scene;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
+use std::sync::Arc;
 
 /// The PSNR (dB) a slice identical to its reference counts as (its MSE is 0).
 pub const PSNR_CAP: f64 = 100.0;
@@ -39,19 +45,22 @@ pub enum SliceAxes {
 }
 
 /// How volumes are scored (recorded in `metrics.json`).
-#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Protocol {
     /// Resample both volumes to `grid³` before scoring; `None` (the default): the native grid.
     pub grid: Option<usize>,
     pub slices: SliceAxes,
+    /// Score inside the object only (`None`, the default: every voxel).
+    pub roi: Option<RoiSpec>,
 }
 
-/// The protocol and, when weights were given, the LPIPS network.
-#[derive(Default)]
+/// The protocol and, when weights were given, the LPIPS network (shared: a suite's cells
+/// score with one network under their scenes' protocols).
+#[derive(Clone, Default)]
 pub struct Evaluation {
     pub protocol: Protocol,
-    pub lpips: Option<(Lpips, PathBuf)>,
+    pub lpips: Option<Arc<(Lpips, PathBuf)>>,
 }
 
 /// The protocol as `metrics.json` records it.
@@ -66,12 +75,31 @@ pub struct ProtocolRecord {
     /// How the test-view projections were made (Joseph re-projection of the volume, or the
     /// Gaussian method's own renderer).
     pub projections: String,
+    /// Where the volume metrics were taken: `the whole grid`, or the object mask and its size.
+    #[serde(default = "whole_grid")]
+    pub roi: String,
+}
+
+fn whole_grid() -> String {
+    "the whole grid".into()
 }
 
 impl Evaluation {
+    /// The region of interest of `scene` under this protocol (`None` without `roi` or without
+    /// references); errors name `evaluation.roi.<field>`.
+    pub fn roi(&self, scene: &Scene) -> Result<Option<Roi>> {
+        let (Some(spec), Some(refs)) = (&self.protocol.roi, &scene.references) else {
+            return Ok(None);
+        };
+        let g = &scene.geometry.volume;
+        Roi::from_references(refs.view(), g.dy, g.dx, spec)
+            .map(Some)
+            .map_err(|e| Error::from(e).under("evaluation.roi"))
+    }
+
     /// The record of this evaluation for volumes of `shape` (`[z, y, x]`), with projection
-    /// metrics made as `projections` says.
-    pub fn record(&self, shape: &[usize], projections: &str) -> ProtocolRecord {
+    /// metrics made as `projections` says, inside `roi` when there is one.
+    pub fn record(&self, shape: &[usize], projections: &str, roi: Option<&Roi>) -> ProtocolRecord {
         ProtocolRecord {
             normalisation: "prediction and reference divided by the reference's maximum; PSNR \
                             peak 1, SSIM data range 1"
@@ -81,7 +109,7 @@ impl Evaluation {
                 Some(n) => format!("resized to {n}³ (trilinear)"),
             },
             slices: self.protocol.slices,
-            lpips: match &self.lpips {
+            lpips: match self.lpips.as_deref() {
                 Some((net, path)) => {
                     format!("{}, v0.1, weights {}", net.net().name(), path.display())
                 }
@@ -90,6 +118,10 @@ impl Evaluation {
                     .into(),
             },
             projections: projections.into(),
+            roi: match roi {
+                Some(r) => r.describe(),
+                None => "the whole grid".into(),
+            },
         }
     }
 }
@@ -111,8 +143,14 @@ pub struct Scores {
     pub slices: usize,
 }
 
-/// Score `pred` against `truth` (mm⁻¹, `[z][y][x]`) under `eval`.
-pub fn score(pred: ArrayView3<f32>, truth: ArrayView3<f32>, eval: &Evaluation) -> Result<Scores> {
+/// Score `pred` against `truth` (mm⁻¹, `[z][y][x]`) under `eval`, inside `roi` when given
+/// ([`Evaluation::roi`] of the scene; the native grid's mask).
+pub fn score(
+    pred: ArrayView3<f32>,
+    truth: ArrayView3<f32>,
+    eval: &Evaluation,
+    roi: Option<&Roi>,
+) -> Result<Scores> {
     let peak = truth.fold(0.0f32, |a, &b| a.max(b));
     if peak <= 0.0 {
         return Err(Error::invalid(
@@ -122,9 +160,20 @@ pub fn score(pred: ArrayView3<f32>, truth: ArrayView3<f32>, eval: &Evaluation) -
     }
     let mut t = truth.mapv(|x| x / peak);
     let mut p = pred.mapv(|x| x / peak);
+    let mut mask = roi.map(|r| r.mask.clone());
     if let Some(n) = eval.protocol.grid {
         t = resize(t.view(), [n, n, n])?;
         p = resize(p.view(), [n, n, n])?;
+        mask = match mask {
+            Some(m) => {
+                Some(resize(m.mapv(|b| b as u8 as f32).view(), [n, n, n])?.mapv(|v| v >= 0.5))
+            }
+            None => None,
+        };
+    }
+    if let Some(mask) = &mask {
+        prism_domain::error::ensure_shape("roi", mask.shape(), t.shape(), "the reference")?;
+        return score_in(p, t, mask, eval);
     }
     let zero_pad = SsimParams::default();
     let crop = SsimParams {
@@ -145,21 +194,8 @@ pub fn score(pred: ArrayView3<f32>, truth: ArrayView3<f32>, eval: &Evaluation) -
             psnr_sum += psnr(ps, ts, 1.0)?.min(PSNR_CAP);
             ssim_sum += ssim_2d(ps, ts, &zero_pad)?;
         }
-        if let Some((net, _)) = &eval.lpips {
-            let clip = |v: ArrayView2<f32>| v.mapv(|x| x.clamp(0.0, 1.0));
-            for chunk in used.chunks(LPIPS_BATCH) {
-                let a: Vec<_> = chunk
-                    .iter()
-                    .map(|&i| clip(p.index_axis(Axis(axis), i)))
-                    .collect();
-                let b: Vec<_> = chunk
-                    .iter()
-                    .map(|&i| clip(t.index_axis(Axis(axis), i)))
-                    .collect();
-                let av: Vec<_> = a.iter().map(|x| x.view()).collect();
-                let bv: Vec<_> = b.iter().map(|x| x.view()).collect();
-                lpips_sum += net.distances(&av, &bv)?.iter().sum::<f64>();
-            }
+        if let Some((net, _)) = eval.lpips.as_deref() {
+            lpips_sum += lpips_of(net, &p, &t, axis, &used)?;
         }
         n += used.len();
     }
@@ -178,6 +214,137 @@ pub fn score(pred: ArrayView3<f32>, truth: ArrayView3<f32>, eval: &Evaluation) -
         ssim_slices: ssim_sum / nf,
         lpips: eval.lpips.as_ref().map(|_| lpips_sum / nf),
         slices: n,
+    })
+}
+
+/// The sum of LPIPS over slices `used` along `axis`, each clipped to [0, 1].
+fn lpips_of(
+    net: &Lpips,
+    p: &Array3<f32>,
+    t: &Array3<f32>,
+    axis: usize,
+    used: &[usize],
+) -> Result<f64> {
+    let clip = |v: ArrayView2<f32>| v.mapv(|x| x.clamp(0.0, 1.0));
+    let mut sum = 0.0;
+    for chunk in used.chunks(LPIPS_BATCH) {
+        let a: Vec<_> = chunk
+            .iter()
+            .map(|&i| clip(p.index_axis(Axis(axis), i)))
+            .collect();
+        let b: Vec<_> = chunk
+            .iter()
+            .map(|&i| clip(t.index_axis(Axis(axis), i)))
+            .collect();
+        let av: Vec<_> = a.iter().map(|x| x.view()).collect();
+        let bv: Vec<_> = b.iter().map(|x| x.view()).collect();
+        sum += net.distances(&av, &bv)?.iter().sum::<f64>();
+    }
+    Ok(sum)
+}
+
+/// Score normalised `p` against `t` inside `mask` (module docs, 5).
+fn score_in(
+    p: Array3<f32>,
+    t: Array3<f32>,
+    mask: &Array3<bool>,
+    eval: &Evaluation,
+) -> Result<Scores> {
+    let params = SsimParams::default();
+    let window = 11;
+    let n = t.shape().to_vec();
+    // Per slice along `axis`: squared-error sum, SSIM-map sums (zero padded; interior only, where
+    // the window fits: scikit-image's convention) and their pixel counts.
+    let slice = |axis: usize, i: usize| -> Result<[f64; 5]> {
+        let m = mask.index_axis(Axis(axis), i);
+        if !m.iter().any(|&b| b) {
+            return Ok([0.0; 5]);
+        }
+        let (ps, ts) = (p.index_axis(Axis(axis), i), t.index_axis(Axis(axis), i));
+        let map = ssim_map(ps, ts, &params)?;
+        let (h, w) = m.dim();
+        let r = window / 2;
+        let mut acc = [0.0; 5];
+        for ((y, x), &inside) in m.indexed_iter() {
+            if inside {
+                acc[0] += (ps[[y, x]] as f64 - ts[[y, x]] as f64).powi(2);
+                acc[1] += map[[y, x]];
+                acc[2] += 1.0;
+                if y >= r && x >= r && y + r < h && x + r < w {
+                    acc[3] += map[[y, x]];
+                    acc[4] += 1.0;
+                }
+            }
+        }
+        Ok(acc)
+    };
+    let to_db = |se: f64, count: f64| 10.0 * (count / se).log10();
+    // Volume metrics: PSNR over the mask; SSIM per axis whose slices hold the window (all three
+    // when none does), the mean of the axes.
+    let fits = |k: usize| (0..3).filter(|&j| j != k).all(|j| n[j] >= window);
+    let mut axes: Vec<usize> = (0..3).filter(|&k| fits(k)).collect();
+    if axes.is_empty() {
+        axes = vec![0, 1, 2];
+    }
+    let (mut se, mut count) = (0.0, 0.0);
+    let (mut ssim, mut ssim_crop) = (Vec::new(), Vec::new());
+    for &k in &axes {
+        let mut sum = [0.0; 5];
+        for i in 0..n[k] {
+            let a = slice(k, i)?;
+            sum.iter_mut().zip(a).for_each(|(s, a)| *s += a);
+        }
+        if k == axes[0] {
+            (se, count) = (sum[0], sum[2]);
+        }
+        ssim.push(sum[1] / sum[2]);
+        if sum[4] > 0.0 {
+            ssim_crop.push(sum[3] / sum[4]);
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    // Slice metrics over the slices holding a mask pixel.
+    let slice_axes: &[usize] = match eval.protocol.slices {
+        SliceAxes::Axial => &[0],
+        SliceAxes::All => &[0, 1, 2],
+    };
+    let (mut psnr_sum, mut ssim_sum, mut lpips_sum, mut used) = (0.0, 0.0, 0.0, 0usize);
+    for &axis in slice_axes {
+        let mut scored = Vec::new();
+        for i in 0..n[axis] {
+            let a = slice(axis, i)?;
+            if a[2] > 0.0 {
+                psnr_sum += if a[0] > 0.0 {
+                    to_db(a[0], a[2]).min(PSNR_CAP)
+                } else {
+                    PSNR_CAP
+                };
+                ssim_sum += a[1] / a[2];
+                scored.push(i);
+            }
+        }
+        if let Some((net, _)) = eval.lpips.as_deref() {
+            lpips_sum += lpips_of(net, &p, &t, axis, &scored)?;
+        }
+        used += scored.len();
+    }
+    let nf = used as f64;
+    Ok(Scores {
+        psnr: if se > 0.0 {
+            to_db(se, count)
+        } else {
+            f64::INFINITY
+        },
+        ssim: mean(&ssim),
+        ssim_skimage: if ssim_crop.is_empty() {
+            f64::NAN
+        } else {
+            mean(&ssim_crop)
+        },
+        psnr_slices: psnr_sum / nf,
+        ssim_slices: ssim_sum / nf,
+        lpips: eval.lpips.as_ref().map(|_| lpips_sum / nf),
+        slices: used,
     })
 }
 
@@ -221,6 +388,28 @@ pub fn resize(vol: ArrayView3<f32>, shape: [usize; 3]) -> Result<Array3<f32>> {
     Ok(out)
 }
 
+/// PSNR of `pred` against `truth` over `mask`'s voxels, peak the reference's maximum, summed
+/// plainly in f64: the independent value the masked scores are tested against.
+#[cfg(test)]
+pub(crate) fn psnr_in_by_hand(
+    pred: ArrayView3<f32>,
+    truth: ArrayView3<f32>,
+    mask: &Array3<bool>,
+) -> f64 {
+    let peak = truth.fold(0.0f32, |a, &b| a.max(b)) as f64;
+    let (mut se, mut n) = (0.0f64, 0.0f64);
+    ndarray::Zip::from(&pred)
+        .and(&truth)
+        .and(mask)
+        .for_each(|&p, &t, &m| {
+            if m {
+                se += ((p as f64 - t as f64) / peak).powi(2);
+                n += 1.0;
+            }
+        });
+    10.0 * (n / se).log10()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -248,7 +437,7 @@ mod tests {
         let mut truth = Array3::<f32>::zeros((12, 12, 12));
         truth.slice_mut(ndarray::s![2..10, 2..10, 2..10]).fill(2.0);
         let eval = Evaluation::default();
-        let same = score(truth.view(), truth.view(), &eval).unwrap();
+        let same = score(truth.view(), truth.view(), &eval, None).unwrap();
         assert_eq!(same.slices, 8, "the four empty axial slices are left out");
         assert_eq!(same.psnr_slices, PSNR_CAP);
         assert!((same.ssim_slices - 1.0).abs() < 1e-12);
@@ -256,7 +445,7 @@ mod tests {
         // A uniform error of 0.1 (after normalisation by the peak 2) on the occupied slices:
         // each slice's PSNR is 20 dB; the volume's counts the error-free empty slices too.
         let pred = truth.mapv(|v| if v > 0.0 { v + 0.2 } else { 0.0 });
-        let s = score(pred.view(), truth.view(), &eval).unwrap();
+        let s = score(pred.view(), truth.view(), &eval, None).unwrap();
         let per_slice = 10.0 * (1.0f64 / (0.1 * 0.1 * 64.0 / 144.0)).log10();
         assert!(
             (s.psnr_slices - per_slice).abs() < 1e-4,
@@ -268,14 +457,68 @@ mod tests {
             protocol: Protocol {
                 grid: None,
                 slices: SliceAxes::All,
+                roi: None,
             },
             lpips: None,
         };
         assert_eq!(
-            score(pred.view(), truth.view(), &all).unwrap().slices,
+            score(pred.view(), truth.view(), &all, None).unwrap().slices,
             3 * 8
         );
-        let e = score(pred.view(), Array3::zeros((2, 2, 2)).view(), &eval);
+        let e = score(pred.view(), Array3::zeros((2, 2, 2)).view(), &eval, None);
         assert!(e.is_err());
+    }
+
+    #[test]
+    fn a_full_mask_scores_as_the_whole_grid_and_errors_outside_it_do_not_count() {
+        // No all-zero slice, so the whole-grid protocol scores every slice the mask path does.
+        let truth = Array3::from_shape_fn((12, 14, 16), |(z, y, x)| {
+            1.0 + ((z * 7 + y * 3 + x) % 5) as f32 * 0.2
+        });
+        let pred = Array3::from_shape_fn(truth.dim(), |(z, y, x)| {
+            truth[[z, y, x]] + ((z + 2 * y + 3 * x) % 7) as f32 * 0.01 - 0.03
+        });
+        let eval = Evaluation::default();
+        let whole = score(pred.view(), truth.view(), &eval, None).unwrap();
+        let full = Roi {
+            mask: Array3::from_elem(truth.dim(), true),
+            spec: RoiSpec::default(),
+        };
+        let inside = score(pred.view(), truth.view(), &eval, Some(&full)).unwrap();
+        for (a, b) in [
+            (whole.psnr, inside.psnr),
+            (whole.ssim, inside.ssim),
+            (whole.ssim_skimage, inside.ssim_skimage),
+            (whole.psnr_slices, inside.psnr_slices),
+            (whole.ssim_slices, inside.ssim_slices),
+        ] {
+            assert!((a - b).abs() < 1e-9, "{a} vs {b}");
+        }
+        assert_eq!(whole.slices, inside.slices);
+        // A box mask: a large error outside it leaves the ROI's PSNR at its closed form.
+        let mut mask = Array3::from_elem(truth.dim(), false);
+        mask.slice_mut(ndarray::s![2..10, 3..11, 4..12]).fill(true);
+        let mut off = pred.clone();
+        ndarray::Zip::from(&mut off).and(&mask).for_each(|v, &m| {
+            if !m {
+                *v += 5.0
+            }
+        });
+        let boxed = Roi {
+            mask: mask.clone(),
+            spec: RoiSpec::default(),
+        };
+        let s = score(off.view(), truth.view(), &eval, Some(&boxed)).unwrap();
+        let want = psnr_in_by_hand(pred.view(), truth.view(), &mask);
+        assert!((s.psnr - want).abs() < 1e-4, "{} vs {want}", s.psnr);
+        assert_eq!(s.slices, 8, "axial slices holding the mask");
+        assert!(s.ssim > 0.0 && s.ssim <= 1.0);
+        // A mask on another grid is an error naming it.
+        let wrong = Roi {
+            mask: Array3::from_elem((2, 2, 2), true),
+            spec: RoiSpec::default(),
+        };
+        let e = score(pred.view(), truth.view(), &eval, Some(&wrong)).unwrap_err();
+        assert!(e.to_string().contains("roi"), "{e}");
     }
 }

@@ -220,8 +220,12 @@ fn lpips_and_the_slice_protocol_reach_metrics_json() {
         protocol: Protocol {
             grid: Some(32),
             slices: SliceAxes::Axial,
+            roi: None,
         },
-        lpips: Some((fixture_model(Net::Alex), "fixture.safetensors".into())),
+        lpips: Some(std::sync::Arc::new((
+            fixture_model(Net::Alex),
+            "fixture.safetensors".into(),
+        ))),
     };
     let options = RunOptions {
         device: cpu_device(),
@@ -474,4 +478,61 @@ fn naf_reconstructs_the_phantom_above_a_floor_set_by_sart() {
         naf.mean.psnr,
         sart.mean.psnr
     );
+}
+
+#[test]
+fn a_finished_run_is_scored_again_inside_the_object() {
+    use crate::evaluate::{Protocol, rescore};
+    use prism_domain::metrics::RoiSpec;
+    let sc = scene();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("fdk");
+    let first = run_into(&classic(ClassicMethod::Fdk, 0), &sc, &out, false)
+        .unwrap()
+        .metrics
+        .unwrap();
+    assert_eq!(first.protocol.roi, "the whole grid");
+    let roi = Evaluation {
+        protocol: Protocol {
+            roi: Some(RoiSpec {
+                threshold: 0.2,
+                ..RoiSpec::default()
+            }),
+            ..Protocol::default()
+        },
+        lpips: None,
+    };
+    let inside = rescore(&out, &sc, &roi).unwrap();
+    assert!(
+        inside.protocol.roi.starts_with("object mask"),
+        "{}",
+        inside.protocol.roi
+    );
+    let on_disk: Metrics = RunDir::read_json(&out.join(RunDir::METRICS)).unwrap();
+    assert_eq!(on_disk, inside);
+    let mask = roi.roi(&sc).unwrap().unwrap().mask;
+    let refs = sc.references.as_ref().unwrap();
+    for (c, (a, b)) in first.channels.iter().zip(&inside.channels).enumerate() {
+        // Test-view metrics and views are the run's; the PSNR is the mean squared error over
+        // the mask's voxels, by hand.
+        assert_eq!(
+            (a.proj_psnr, a.proj_ssim, a.views),
+            (b.proj_psnr, b.proj_ssim, b.views)
+        );
+        let vol: Array3<f32> =
+            ndarray_npy::read_npy(out.join(RunDir::volume_file(&a.label))).unwrap();
+        let truth = refs.index_axis(Axis(0), c);
+        assert!(mask.iter().any(|&m| m) && !mask.iter().all(|&m| m));
+        let want = crate::evaluate::protocol::psnr_in_by_hand(vol.view(), truth, &mask);
+        assert!(
+            (b.scores.psnr - want).abs() < 1e-4,
+            "{} vs {want}",
+            b.scores.psnr
+        );
+        assert!((b.scores.psnr - a.scores.psnr).abs() > 0.01);
+    }
+    assert_eq!(inside.wall_s, first.wall_s);
+    // Scored again under the whole grid, the first scores come back exactly.
+    let back = rescore(&out, &sc, &Evaluation::default()).unwrap();
+    assert_eq!(back, first);
 }

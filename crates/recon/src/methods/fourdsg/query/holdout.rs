@@ -73,6 +73,7 @@ pub fn predict_holdout(
         Some(_) => Some(channel_specs(full)?.0),
         None => None,
     };
+    let roi = eval.roi(full)?;
     let mut vols = Vec::new();
     let mut scores = Vec::new();
     for &c in held {
@@ -89,7 +90,12 @@ pub fn predict_holdout(
             .index_axis(Axis(0), 0)
             .to_owned();
         let volume = match &full.references {
-            Some(r) => Some(score(vol.view(), r.index_axis(Axis(0), c), eval)?),
+            Some(r) => Some(score(
+                vol.view(),
+                r.index_axis(Axis(0), c),
+                eval,
+                roi.as_ref(),
+            )?),
             None => None,
         };
         let views = full.views_with_channel(c);
