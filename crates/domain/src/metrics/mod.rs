@@ -4,6 +4,7 @@
 
 pub mod psnr;
 pub mod roi;
+pub mod score_json;
 pub mod ssim;
 
 pub use psnr::psnr;

@@ -14,7 +14,7 @@ pub use protocol::{Evaluation, Protocol, ProtocolRecord, Scores, SliceAxes, scor
 use crate::record::RunDir;
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView3, Axis};
-use prism_domain::metrics::{SsimParams, projection_metrics, psnr, ssim_3d};
+use prism_domain::metrics::{SsimParams, projection_metrics, psnr, score_json, ssim_3d};
 use prism_domain::projector::Joseph;
 use prism_domain::scene::{Scene, SpectralCoordinate};
 use serde::{Deserialize, Serialize};
@@ -30,17 +30,24 @@ pub struct ChannelMetrics {
     #[serde(flatten)]
     pub scores: Scores,
     /// Mean projection PSNR/SSIM over the test views (absent when the channel has none).
+    #[serde(with = "score_json::option", default)]
     pub proj_psnr: Option<f64>,
+    #[serde(with = "score_json::option", default)]
     pub proj_ssim: Option<f64>,
 }
 
-/// Means over channels.
+/// Means over channels (written as [`Scores`] are: `"inf"` for an infinite PSNR).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MeanMetrics {
+    #[serde(with = "score_json")]
     pub psnr: f64,
+    #[serde(with = "score_json")]
     pub ssim: f64,
+    #[serde(with = "score_json")]
     pub psnr_slices: f64,
+    #[serde(with = "score_json")]
     pub ssim_slices: f64,
+    #[serde(with = "score_json::option", default)]
     pub lpips: Option<f64>,
 }
 

@@ -22,7 +22,9 @@
 use super::lpips::Lpips;
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView2, ArrayView3, Axis};
-use prism_domain::metrics::{Border, Roi, RoiSpec, SsimParams, psnr, ssim_2d, ssim_3d, ssim_map};
+use prism_domain::metrics::{
+    Border, Roi, RoiSpec, SsimParams, psnr, score_json, ssim_2d, ssim_3d, ssim_map,
+};
 use prism_domain::scene::Scene;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -129,15 +131,23 @@ impl Evaluation {
 /// The scores of one volume against its reference.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Scores {
-    /// 3-D PSNR (dB) and SSIM (R²-Gaussian's convention) of the normalised volume.
+    /// 3-D PSNR (dB; `"inf"` in JSON for a volume identical to its reference, see
+    /// [`score_json`]) and SSIM (R²-Gaussian's convention) of the normalised volume.
+    #[serde(with = "score_json")]
     pub psnr: f64,
+    #[serde(with = "score_json")]
     pub ssim: f64,
-    /// 3-D SSIM with scikit-image's border convention (interior of each slice), for reference.
+    /// 3-D SSIM with scikit-image's border convention (interior of each slice), for reference
+    /// (NaN when a region of interest has no pixel in any slice's interior).
+    #[serde(with = "score_json")]
     pub ssim_skimage: f64,
     /// Means over the scored slices (see the module docs).
+    #[serde(with = "score_json")]
     pub psnr_slices: f64,
+    #[serde(with = "score_json")]
     pub ssim_slices: f64,
     /// Mean LPIPS over the scored slices; `None` without LPIPS weights.
+    #[serde(with = "score_json::option", default)]
     pub lpips: Option<f64>,
     /// Number of slices scored.
     pub slices: usize,

@@ -175,6 +175,29 @@ mod tests {
     }
 
     #[test]
+    fn a_volume_identical_to_its_reference_reads_back_as_infinite() {
+        use crate::evaluate::{Evaluation, score};
+        use ndarray::Array3;
+        // The PSNR of an identical volume is +∞; metrics.json writes it as "inf" (JSON has no
+        // infinity), and the report reads it back.
+        let truth = Array3::from_shape_fn((12, 12, 12), |(z, y, x)| (z + y + x) as f32 + 1.0);
+        let scores = score(truth.view(), truth.view(), &Evaluation::default(), None).unwrap();
+        assert_eq!(scores.psnr, f64::INFINITY);
+        let json = serde_json::to_string(&scores).unwrap();
+        assert!(json.contains(r#""psnr":"inf""#), "{json}");
+        let back: crate::evaluate::Scores = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, scores);
+        let t = table(&[RunScores {
+            channels: vec![ChannelScore {
+                psnr: Some(back.psnr),
+                ..run("fdk", &[("40keV", 0.0, false)]).channels[0].clone()
+            }],
+            ..run("fdk", &[])
+        }]);
+        assert!(t.contains("| 40keV | inf |"), "{t}");
+    }
+
+    #[test]
     fn a_missing_metrics_file_names_the_path() {
         let dir = tempfile::tempdir().unwrap();
         let e = RunScores::load(dir.path()).unwrap_err().to_string();

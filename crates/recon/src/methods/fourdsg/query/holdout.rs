@@ -56,7 +56,9 @@ pub struct HoldoutScore {
     /// scene has references.
     pub volume: Option<Scores>,
     /// Mean projection PSNR / SSIM over every view at which the channel was simulated.
+    #[serde(with = "prism_domain::metrics::score_json::option", default)]
     pub proj_psnr: Option<f64>,
+    #[serde(with = "prism_domain::metrics::score_json::option", default)]
     pub proj_ssim: Option<f64>,
     pub views: usize,
 }
