@@ -25,6 +25,8 @@ pub fn run(
     options: &RunOptions,
 ) -> Result<Outcome> {
     options.check(config)?;
+    // A region of interest that cannot be made fails now, not after the reconstruction.
+    options.evaluation.roi(scene)?;
     dir.write_text(RunDir::CONFIG, &config.resolved_yaml()?)?;
     let metrics = match config {
         MethodConfig::Classic(c) => classic::run::run(c, scene, &mut dir, options)?,

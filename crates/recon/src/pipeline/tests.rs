@@ -536,3 +536,39 @@ fn a_finished_run_is_scored_again_inside_the_object() {
     let back = rescore(&out, &sc, &Evaluation::default()).unwrap();
     assert_eq!(back, first);
 }
+
+#[test]
+fn a_region_of_interest_that_cannot_be_made_fails_before_the_reconstruction() {
+    use crate::evaluate::Protocol;
+    use prism_domain::metrics::RoiSpec;
+    let sc = scene();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("sart");
+    let eval = Evaluation {
+        protocol: Protocol {
+            roi: Some(RoiSpec {
+                erode_mm: 1000.0,
+                ..RoiSpec::default()
+            }),
+            ..Protocol::default()
+        },
+        lpips: None,
+    };
+    let options = RunOptions {
+        device: cpu_device(),
+        from_geometry: None,
+        observer: &Silent,
+        evaluation: &eval,
+        checkpoint: None,
+    };
+    let e = run(
+        &classic(ClassicMethod::Sart, 2),
+        &sc,
+        RunDir::create(&out, false).unwrap(),
+        &options,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("evaluation.roi") && e.contains("empty"), "{e}");
+    assert!(!out.exists(), "nothing is published");
+}
