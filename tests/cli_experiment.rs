@@ -291,7 +291,8 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     // The spectral suite: interleaved scenes at 13 angles per channel (39 for 3 channels, 52 for
     // 4 tube voltages), their every-channel reference at the same angles, and two low-dose levels
     // (with the Gaussian methods' noise-aware data term beside their own); the joint classic
-    // baseline (TNV) beside SART.
+    // baseline (TNV) beside SART; 4D-SG with R²-Gaussian's rates and with the basis head in
+    // every study.
     let spectral = repo.join("configs/suites/spectral.yaml");
     let (ok, t) = prism(&["experiment", path(&spectral), "-o", path(&out), "--dry-run"]);
     assert!(ok, "{t}");
@@ -301,10 +302,11 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/kvp-v52-interleaved-s0  (64³, 52 views, 4 channels)")
             && t.contains("scenes/head-v39-shipped-s0  (64³, 39 views, 3 channels)")
             && t.contains("scenes/pcct-v13-i0-3e3-s0  (64³, 13 views, 4 channels)")
-            && t.contains("42 run cells:")
+            && t.contains("59 run cells:")
             && t.contains("runs/head-v39-interleaved-s0/r2gs  to run\n")
             && t.contains("runs/pcct-v13-i0-1e4-s0/tnv  to run\n")
-            && t.contains("runs/pcct-v13-i0-3e3-s0/4dsg-counts  to run\n"),
+            && t.contains("runs/pcct-v13-i0-3e3-s0/4dsg-counts  to run\n")
+            && t.contains("runs/kvp-v52-shipped-s0/4dsg-basis-r2rates  to run\n"),
         "{t}"
     );
     let paper = repo.join("configs/suites/paper.yaml");
