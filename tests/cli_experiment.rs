@@ -336,3 +336,35 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
         "{t}"
     );
 }
+
+/// `jobs` beyond the machine's cores runs one cell per core, says so, and records what ran.
+#[test]
+fn more_jobs_than_cores_are_capped_at_the_cores() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = tiny_suite(dir.path());
+    let out = dir.path().join("out");
+    let (ok, t) = prism(&[
+        "experiment",
+        path(&suite),
+        "-o",
+        path(&out),
+        "--study",
+        "table",
+        "--only",
+        "fdk",
+        "--jobs",
+        "100000",
+    ]);
+    assert!(ok, "{t}");
+    let cores = std::thread::available_parallelism().unwrap().get();
+    assert!(
+        t.contains(&format!("jobs 100000: this machine has {cores} cores")),
+        "{t}"
+    );
+    let record: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("runs/p3-v3-shipped-s0/fdk/cell.json")).unwrap(),
+    )
+    .unwrap();
+    let concurrent = record["execution"]["concurrent"].as_u64().unwrap() as usize;
+    assert!((1..=cores).contains(&concurrent), "{record}");
+}

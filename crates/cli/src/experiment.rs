@@ -188,13 +188,25 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
     let (loaded, plan) = load(suite, &a.set)?;
     let bars = Bars::new();
     let evaluation = evaluation(&loaded)?;
+    // More cells at a time than cores only adds threads: the count is capped at the cores.
+    let wanted = a.jobs.map_or(loaded.suite.jobs as u64, |n| n);
+    let cores = rayon::current_num_threads().max(1);
+    let jobs = wanted.clamp(1, cores as u64) as usize;
+    if wanted > cores as u64 {
+        bars.note(
+            Level::Warning,
+            &format!(
+                "jobs {wanted}: this machine has {cores} cores; running {jobs} cells at a time"
+            ),
+        );
+    }
     let options = ExecOptions {
         observer: &bars,
         device: a.device.map(DeviceArg::choice),
         evaluation: &evaluation,
         evaluation_spec: &loaded.suite.evaluation,
         force: a.force,
-        jobs: a.jobs.map_or(loaded.suite.jobs, |n| n as usize),
+        jobs,
         allow_memory: a.allow_memory,
     };
     let selection = Selection::of(&plan, a.only.as_deref(), &a.study)?;

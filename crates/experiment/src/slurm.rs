@@ -7,6 +7,7 @@
 
 use crate::plan::Plan;
 use crate::suite::LoadedSuite;
+use crate::suite::plain_text;
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -38,6 +39,28 @@ pub struct Submission {
     pub scripts: Vec<PathBuf>,
     /// Job ids of the scenes array, the runs array and the report (empty when not submitted).
     pub jobs: Vec<String>,
+}
+
+impl SlurmOptions {
+    /// Refuse a control character (a newline would start a new line of the batch script) in any
+    /// option written unquoted into an `#SBATCH` line; errors name the option.
+    pub fn validate(&self) -> Result<()> {
+        let fields = [
+            ("--partition", self.partition.as_deref()),
+            ("--time", self.time.as_deref()),
+            ("--mem", self.mem.as_deref()),
+        ];
+        let extra = self
+            .extra
+            .iter()
+            .map(|e| ("--sbatch-arg", Some(e.as_str())));
+        for (name, value) in fields.into_iter().chain(extra) {
+            if let Some(v) = value {
+                plain_text(name, v)?;
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Single-quote `s` for a POSIX shell.
@@ -98,6 +121,7 @@ pub fn submit(
     out: &Path,
     opts: &SlurmOptions,
 ) -> Result<Submission> {
+    opts.validate()?;
     let dir = out.join("slurm");
     let logs = dir.join("logs");
     std::fs::create_dir_all(&logs).map_err(|e| Error::io(&logs, e))?;
@@ -120,6 +144,7 @@ pub fn submit(
         c
     };
     let name = &loaded.suite.name;
+    plain_text("--out", &logs.display().to_string())?;
     let log = |what: &str| logs.join(what).display().to_string();
     let files = [
         (
@@ -235,5 +260,36 @@ mod tests {
             "{s}"
         );
         assert_eq!(shell_quote("a b"), "'a b'");
+    }
+
+    #[test]
+    fn a_newline_in_an_option_is_refused_naming_it() {
+        let opts = SlurmOptions {
+            prism: "/p".into(),
+            pass_on: vec![],
+            partition: Some("cpu\nrm -rf ~".into()),
+            time: None,
+            cpus_per_task: 1,
+            mem: None,
+            extra: vec![],
+            submit: false,
+        };
+        let e = opts.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("--partition") && e.contains("control character"),
+            "{e}"
+        );
+        let opts = SlurmOptions {
+            partition: None,
+            extra: vec!["--qos=short\r".into()],
+            ..opts
+        };
+        assert!(
+            opts.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("--sbatch-arg")
+        );
+        assert!(plain_text("x", "a b-c_d").is_ok());
     }
 }

@@ -258,6 +258,18 @@ fn key_ok(k: &str) -> bool {
         && !k.starts_with('.')
 }
 
+/// `Ok` when `text` has no control character (newline, carriage return, tab…), else an error
+/// naming `field`: such text would break a line of a generated script or report.
+pub fn plain_text(field: &str, text: &str) -> Result<()> {
+    match text.chars().find(|c| c.is_control()) {
+        Some(c) => Err(Error::invalid(
+            field,
+            format!("{text:?} holds the control character {c:?}: give it on one line"),
+        )),
+        None => Ok(()),
+    }
+}
+
 impl Suite {
     /// Names, references between sections and axis values; errors name the field.
     pub fn validate(&self) -> Result<()> {
@@ -287,9 +299,24 @@ impl Suite {
             if s.label.as_deref() == Some("") {
                 return bad(format!("scenes.{k}.label"), "must not be empty".into());
             }
+            plain_text(
+                &format!("scenes.{k}.label"),
+                s.label.as_deref().unwrap_or(""),
+            )?;
+            if let Some(r) = &s.roi {
+                r.validate()
+                    .map_err(|e| e.under(&format!("scenes.{k}.roi")))?;
+            }
         }
         for (k, m) in &self.methods {
             Overrides::parse(&m.set).map_err(|e| e.under(&format!("methods.{k}.set")))?;
+            plain_text(
+                &format!("methods.{k}.label"),
+                m.label.as_deref().unwrap_or(""),
+            )?;
+        }
+        if let Some(r) = &self.evaluation.roi {
+            r.validate().map_err(|e| e.under("evaluation.roi"))?;
         }
         if self.studies.is_empty() {
             return bad("studies".into(), "at least one study is required".into());
@@ -429,6 +456,22 @@ mod tests {
             (SUITE, "methods.sart.set=[iterations]", "methods.sart.set"),
             (SUITE, "scenes.a/b={config: x}", "scenes.a/b"),
             (SUITE, "studies.0.kind=movie", "studies[0].kind"),
+            // A label reaches the report and figures: one line only.
+            (
+                SUITE,
+                "methods.sart.label=\"SART\\nrm -rf ~\"",
+                "holds the control character '\\n'",
+            ),
+            (
+                SUITE,
+                "evaluation.roi={threshold: 2}",
+                "evaluation.roi.threshold",
+            ),
+            (
+                SUITE,
+                "scenes.a.roi={erode_mm: -1}",
+                "scenes.a.roi.erode_mm",
+            ),
         ] {
             let e = load(text, &[set]).unwrap_err().to_string();
             assert!(e.contains(needle) && e.contains("suite.yaml"), "{set}: {e}");
