@@ -49,10 +49,11 @@ pub struct ExecOptions<'a> {
 }
 
 impl ExecOptions<'_> {
-    /// How each run cell runs under these options: `jobs` at a time (at most one per core) on
-    /// `threads / jobs` threads each (at least one).
+    /// How each run cell runs under these options: `jobs` at a time on `threads / jobs` threads
+    /// each (at least one). `prism experiment` caps `jobs` at the cores; this is also called
+    /// inside a cell's own pool, so it must not read the thread count to cap it.
     pub fn execution(&self) -> Execution {
-        let jobs = self.jobs.clamp(1, rayon::current_num_threads().max(1));
+        let jobs = self.jobs.max(1);
         Execution {
             concurrent: jobs,
             threads: (rayon::current_num_threads() / jobs).max(1),
