@@ -222,6 +222,29 @@ fn live_writer(staging: &Path) -> Option<u32> {
     (alive && pid != std::process::id()).then_some(pid)
 }
 
+/// Replace the file `path` with `bytes` atomically: written to the hidden sibling
+/// `.<name>.partial`, flushed, then renamed over `path`. A reader sees the old file or the new
+/// one, never a part; a failure leaves the old file as it was.
+pub fn replace_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    let name = path
+        .file_name()
+        .ok_or_else(|| Error::invalid("path", format!("{} names no file", path.display())))?;
+    let staged = path.with_file_name(format!(".{}.partial", name.to_string_lossy()));
+    let write = || -> std::io::Result<()> {
+        let mut f = fs::File::create(&staged)?;
+        std::io::Write::write_all(&mut f, bytes)?;
+        f.sync_all()
+    };
+    if let Err(e) = write().and_then(|()| fs::rename(&staged, path)) {
+        let _ = fs::remove_file(&staged);
+        return Err(Error::io(path, e));
+    }
+    if let Some(dir) = path.parent() {
+        sync_dir(dir);
+    }
+    Ok(())
+}
+
 /// Flush a directory's entries (best effort: not every platform can open a directory).
 pub fn sync_dir(dir: &Path) {
     if let Ok(d) = fs::File::open(dir) {
@@ -232,6 +255,20 @@ pub fn sync_dir(dir: &Path) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_replaced_file_holds_the_new_bytes_and_no_staging_is_left() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("metrics.json");
+        fs::write(&path, "old").unwrap();
+        replace_file(&path, b"new").unwrap();
+        assert_eq!(fs::read_to_string(&path).unwrap(), "new");
+        assert_eq!(names(dir.path()), vec!["metrics.json"]);
+        // A target that cannot be written keeps nothing behind.
+        let missing = dir.path().join("no-such-dir").join("f");
+        assert!(replace_file(&missing, b"x").is_err());
+        assert_eq!(names(dir.path()), vec!["metrics.json"]);
+    }
 
     fn names(dir: &Path) -> Vec<String> {
         entries(dir)

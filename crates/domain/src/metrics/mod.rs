@@ -9,7 +9,7 @@ pub mod ssim;
 
 pub use psnr::psnr;
 pub use roi::{Roi, RoiSpec};
-pub use ssim::{Border, Ssim3d, SsimParams, ssim_2d, ssim_3d, ssim_map};
+pub use ssim::{Border, Ssim3d, SsimParams, ssim_2d, ssim_3d, ssim_map, window_axes};
 
 use crate::{Error, Result};
 use ndarray::{ArrayView3, Axis};

@@ -23,7 +23,16 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Window half-width (11×11 window).
-const RADIUS: usize = 5;
+pub const RADIUS: usize = 5;
+
+/// The axes of a `[z, y, x]` volume whose slices hold the 11×11 window (none for a volume too
+/// small on every axis).
+pub fn window_axes(shape: &[usize]) -> Vec<usize> {
+    let window = 2 * RADIUS + 1;
+    (0..3)
+        .filter(|&k| (0..3).filter(|&j| j != k).all(|j| shape[j] >= window))
+        .collect()
+}
 
 /// How the SSIM map treats the image border.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -190,9 +199,7 @@ pub fn ssim_3d(pred: ArrayView3<f32>, truth: ArrayView3<f32>, p: &SsimParams) ->
     check_params(p)?;
     crate::error::ensure_shape("prediction", pred.shape(), truth.shape(), "the reference")?;
     let n = truth.shape();
-    let window = 2 * RADIUS + 1;
-    let fits = |k: usize| (0..3).filter(|&j| j != k).all(|j| n[j] >= window);
-    let mut scored: Vec<usize> = (0..3).filter(|&k| fits(k)).collect();
+    let mut scored = window_axes(n);
     if scored.is_empty() && p.border == Border::ZeroPad {
         scored = vec![0, 1, 2];
     }

@@ -206,11 +206,7 @@ pub fn rescore(dir: &Path, scene: &Scene, eval: &Evaluation) -> Result<Metrics> 
         protocol: eval.record(&shape, &old.protocol.projections, roi.as_ref()),
         ..old
     };
-    let json = serde_json::to_string_pretty(&metrics)
-        .map_err(|e| Error::field(&path, ".", e.to_string()))?;
-    let staged = dir.join(format!(".{}.rescored", RunDir::METRICS));
-    std::fs::write(&staged, json + "\n").map_err(|e| Error::io(&staged, e))?;
-    std::fs::rename(&staged, &path).map_err(|e| Error::io(&path, e))?;
+    RunDir::replace_json(&path, &metrics)?;
     Ok(metrics)
 }
 

@@ -22,8 +22,9 @@
 use super::lpips::Lpips;
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView2, ArrayView3, Axis};
+use prism_domain::metrics::ssim::RADIUS as SSIM_RADIUS;
 use prism_domain::metrics::{
-    Border, Roi, RoiSpec, SsimParams, psnr, score_json, ssim_2d, ssim_3d, ssim_map,
+    Border, Roi, RoiSpec, SsimParams, psnr, score_json, ssim_2d, ssim_3d, ssim_map, window_axes,
 };
 use prism_domain::scene::Scene;
 use serde::{Deserialize, Serialize};
@@ -261,10 +262,20 @@ fn score_in(
     eval: &Evaluation,
 ) -> Result<Scores> {
     let params = SsimParams::default();
-    let window = 11;
     let n = t.shape().to_vec();
-    // Per slice along `axis`: squared-error sum, SSIM-map sums (zero padded; interior only, where
-    // the window fits: scikit-image's convention) and their pixel counts.
+    // Volume SSIM: the axes whose slices hold the window (all three when none does, as
+    // `ssim_3d` with zero padding); slice metrics: the protocol's axes.
+    let mut volume_axes = window_axes(&n);
+    if volume_axes.is_empty() {
+        volume_axes = vec![0, 1, 2];
+    }
+    let slice_axes: &[usize] = match eval.protocol.slices {
+        SliceAxes::Axial => &[0],
+        SliceAxes::All => &[0, 1, 2],
+    };
+    // Per slice of every axis either needs, made once: the squared-error sum, the SSIM map's sums
+    // (zero padded; and over the interior, where the window fits: scikit-image's convention)
+    // and their pixel counts, over the mask's pixels.
     let slice = |axis: usize, i: usize| -> Result<[f64; 5]> {
         let m = mask.index_axis(Axis(axis), i);
         if !m.iter().any(|&b| b) {
@@ -273,7 +284,7 @@ fn score_in(
         let (ps, ts) = (p.index_axis(Axis(axis), i), t.index_axis(Axis(axis), i));
         let map = ssim_map(ps, ts, &params)?;
         let (h, w) = m.dim();
-        let r = window / 2;
+        let r = SSIM_RADIUS;
         let mut acc = [0.0; 5];
         for ((y, x), &inside) in m.indexed_iter() {
             if inside {
@@ -288,50 +299,43 @@ fn score_in(
         }
         Ok(acc)
     };
-    let to_db = |se: f64, count: f64| 10.0 * (count / se).log10();
-    // Volume metrics: PSNR over the mask; SSIM per axis whose slices hold the window (all three
-    // when none does), the mean of the axes.
-    let fits = |k: usize| (0..3).filter(|&j| j != k).all(|j| n[j] >= window);
-    let mut axes: Vec<usize> = (0..3).filter(|&k| fits(k)).collect();
-    if axes.is_empty() {
-        axes = vec![0, 1, 2];
+    let mut stats: [Vec<[f64; 5]>; 3] = Default::default();
+    for k in 0..3 {
+        if volume_axes.contains(&k) || slice_axes.contains(&k) {
+            stats[k] = (0..n[k]).map(|i| slice(k, i)).collect::<Result<_>>()?;
+        }
     }
-    let (mut se, mut count) = (0.0, 0.0);
+    let to_db = |se: f64, count: f64| 10.0 * (count / se).log10();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    // Volume metrics: PSNR over the mask; SSIM per axis, then the mean of the axes.
+    let total = |k: usize| {
+        stats[k].iter().fold([0.0; 5], |mut s, a| {
+            s.iter_mut().zip(a).for_each(|(s, a)| *s += a);
+            s
+        })
+    };
+    let first = total(volume_axes[0]);
+    let (se, count) = (first[0], first[2]);
     let (mut ssim, mut ssim_crop) = (Vec::new(), Vec::new());
-    for &k in &axes {
-        let mut sum = [0.0; 5];
-        for i in 0..n[k] {
-            let a = slice(k, i)?;
-            sum.iter_mut().zip(a).for_each(|(s, a)| *s += a);
-        }
-        if k == axes[0] {
-            (se, count) = (sum[0], sum[2]);
-        }
+    for &k in &volume_axes {
+        let sum = total(k);
         ssim.push(sum[1] / sum[2]);
         if sum[4] > 0.0 {
             ssim_crop.push(sum[3] / sum[4]);
         }
     }
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     // Slice metrics over the slices holding a mask pixel.
-    let slice_axes: &[usize] = match eval.protocol.slices {
-        SliceAxes::Axial => &[0],
-        SliceAxes::All => &[0, 1, 2],
-    };
     let (mut psnr_sum, mut ssim_sum, mut lpips_sum, mut used) = (0.0, 0.0, 0.0, 0usize);
     for &axis in slice_axes {
-        let mut scored = Vec::new();
-        for i in 0..n[axis] {
-            let a = slice(axis, i)?;
-            if a[2] > 0.0 {
-                psnr_sum += if a[0] > 0.0 {
-                    to_db(a[0], a[2]).min(PSNR_CAP)
-                } else {
-                    PSNR_CAP
-                };
-                ssim_sum += a[1] / a[2];
-                scored.push(i);
-            }
+        let scored: Vec<usize> = (0..n[axis]).filter(|&i| stats[axis][i][2] > 0.0).collect();
+        for &i in &scored {
+            let a = stats[axis][i];
+            psnr_sum += if a[0] > 0.0 {
+                to_db(a[0], a[2]).min(PSNR_CAP)
+            } else {
+                PSNR_CAP
+            };
+            ssim_sum += a[1] / a[2];
         }
         if let Some((net, _)) = eval.lpips.as_deref() {
             lpips_sum += lpips_of(net, &p, &t, axis, &scored)?;

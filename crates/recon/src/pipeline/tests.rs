@@ -482,7 +482,7 @@ fn naf_reconstructs_the_phantom_above_a_floor_set_by_sart() {
 
 #[test]
 fn a_finished_run_is_scored_again_inside_the_object() {
-    use crate::evaluate::{Protocol, rescore};
+    use crate::evaluate::rescore;
     use prism_domain::metrics::RoiSpec;
     let sc = scene();
     let dir = tempfile::tempdir().unwrap();
@@ -492,16 +492,10 @@ fn a_finished_run_is_scored_again_inside_the_object() {
         .metrics
         .unwrap();
     assert_eq!(first.protocol.roi, "the whole grid");
-    let roi = Evaluation {
-        protocol: Protocol {
-            roi: Some(RoiSpec {
-                threshold: 0.2,
-                ..RoiSpec::default()
-            }),
-            ..Protocol::default()
-        },
-        lpips: None,
-    };
+    let roi = inside(RoiSpec {
+        threshold: 0.2,
+        ..RoiSpec::default()
+    });
     let inside = rescore(&out, &sc, &roi).unwrap();
     assert!(
         inside.protocol.roi.starts_with("object mask"),
@@ -539,21 +533,14 @@ fn a_finished_run_is_scored_again_inside_the_object() {
 
 #[test]
 fn a_region_of_interest_that_cannot_be_made_fails_before_the_reconstruction() {
-    use crate::evaluate::Protocol;
     use prism_domain::metrics::RoiSpec;
     let sc = scene();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("sart");
-    let eval = Evaluation {
-        protocol: Protocol {
-            roi: Some(RoiSpec {
-                erode_mm: 1000.0,
-                ..RoiSpec::default()
-            }),
-            ..Protocol::default()
-        },
-        lpips: None,
-    };
+    let eval = inside(RoiSpec {
+        erode_mm: 1000.0,
+        ..RoiSpec::default()
+    });
     let options = RunOptions {
         device: cpu_device(),
         from_geometry: None,
@@ -571,4 +558,15 @@ fn a_region_of_interest_that_cannot_be_made_fails_before_the_reconstruction() {
     .to_string();
     assert!(e.contains("evaluation.roi") && e.contains("empty"), "{e}");
     assert!(!out.exists(), "nothing is published");
+}
+
+/// The default evaluation, scored inside the object mask `spec` makes.
+fn inside(spec: prism_domain::metrics::RoiSpec) -> Evaluation {
+    Evaluation {
+        protocol: crate::evaluate::Protocol {
+            roi: Some(spec),
+            ..Default::default()
+        },
+        lpips: None,
+    }
 }

@@ -172,9 +172,23 @@ impl RunDir {
     /// Write `value` as pretty JSON to the entry `name`.
     pub fn write_json<T: Serialize>(&mut self, name: &str, value: &T) -> Result<()> {
         let path = self.file(name);
+        fs::write(&path, Self::json(&path, value)?).map_err(|e| Error::io(&path, e))
+    }
+
+    /// Replace the JSON file `path` of a published run (`metrics.json` scored again, a suite
+    /// cell's record) atomically, in [`RunDir::write_json`]'s format.
+    pub fn replace_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
+        Ok(prism_domain::staged::replace_file(
+            path,
+            Self::json(path, value)?.as_bytes(),
+        )?)
+    }
+
+    /// `value` as pretty JSON with a final newline; errors name `path`.
+    fn json<T: Serialize>(path: &Path, value: &T) -> Result<String> {
         let json = serde_json::to_string_pretty(value)
-            .map_err(|e| Error::field(&path, ".", e.to_string()))?;
-        fs::write(&path, json + "\n").map_err(|e| Error::io(&path, e))
+            .map_err(|e| Error::field(path, ".", e.to_string()))?;
+        Ok(json + "\n")
     }
 
     /// Read a JSON file a run wrote (`metrics.json`, `ablation.json`, …); errors name the file.
