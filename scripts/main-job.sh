@@ -16,6 +16,6 @@ $prism simulate configs/phantom-4mono.yaml -o "$out/scene"
 $prism recon configs/recon/fdk.yaml -s "$out/scene" -o "$out/fdk" --force
 $prism recon configs/recon/sart.yaml -s "$out/scene" -o "$out/sart" --force
 $prism recon configs/recon/4dsg-holdout.yaml -s "$out/scene" -o "$out/4dsg" --force
-$prism query "$out/4dsg" --coordinate 85 -o "$out/4dsg/query-85keV.npy"
+$prism query "$out/4dsg" --coordinate 85 -o "$out/4dsg/query-85keV.npy" --force
 $prism report "$out/fdk" "$out/sart" "$out/4dsg"
 echo "4D-SG at 85 keV (never observed): $out/4dsg/query-85keV.npy"

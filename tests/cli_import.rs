@@ -22,19 +22,9 @@ const FLATS: usize = 3;
 
 /// A version-1 `.npy` of little-endian u16, written by hand (an independent writer).
 fn write_npy_u16(path: &Path, shape: [usize; 3], data: &[u16]) {
-    let mut dict = format!(
-        "{{'descr': '<u2', 'fortran_order': False, 'shape': ({}, {}, {}), }}",
-        shape[0], shape[1], shape[2]
-    );
-    while !(10 + dict.len() + 1).is_multiple_of(64) {
-        dict.push(' ');
-    }
-    dict.push('\n');
-    let mut out = b"\x93NUMPY\x01\x00".to_vec();
-    out.extend((dict.len() as u16).to_le_bytes());
-    out.extend(dict.as_bytes());
-    out.extend(data.iter().flat_map(|v| v.to_le_bytes()));
-    std::fs::write(path, out).unwrap();
+    let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let shape = format!("({}, {}, {})", shape[0], shape[1], shape[2]);
+    common::npy_with_header(path, "<u2", &shape, &bytes);
 }
 
 #[test]

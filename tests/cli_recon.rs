@@ -241,6 +241,7 @@ iterations: 2
     let out = dir.path().join("q.npy");
     let (ok, t) = prism(&["query", path(&run), "--coordinate", "60", "-o", path(&out)]);
     assert!(ok && out.is_file(), "{t}");
+    // The output exists: replaced only with --force.
     let (ok, t) = prism(&[
         "query",
         path(&run),
@@ -249,6 +250,17 @@ iterations: 2
         "--projections",
         "-o",
         path(&out),
+    ]);
+    assert!(!ok && t.contains("--force"), "{t}");
+    let (ok, t) = prism(&[
+        "query",
+        path(&run),
+        "--tau",
+        "0.5",
+        "--projections",
+        "-o",
+        path(&out),
+        "--force",
     ]);
     assert!(ok, "{t}");
     let (ok, t) = prism(&["query", path(&run), "--coordinate", "120", "-o", path(&out)]);

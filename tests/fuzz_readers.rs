@@ -1,6 +1,8 @@
 //! Fuzzing the readers of user files with bolero: scene directories (`scene.yaml` and its `.npy`
 //! arrays), R²-Gaussian case folders (`meta_data.json` and its projections), method configs,
-//! scene (simulation) configs, trained models and stage-1 checkpoints (safetensors).
+//! scene (simulation) configs, trained models and stage-1 checkpoints (safetensors), import
+//! configs (with their images), TIFF stacks, and the resume files of R²-Gaussian and NAF runs.
+//! (Prism writes NIfTI and MetaImage but reads neither.)
 //!
 //! Property: every input is read, or refused with an error that names the file; nothing panics,
 //! aborts or allocates what the file does not hold (an abort ends the test process: a failure).
@@ -13,7 +15,8 @@
 //!   truncation, duplicated spans.
 //!
 //! `PRISM_FUZZ_ITERATIONS` sets the random inputs per check (default 300, a CI budget of a few
-//! seconds per target). Longer runs: `cargo bolero test --engine libfuzzer fuzz_<target>` (nightly),
+//! seconds per target); `PRISM_FUZZ_SECONDS` instead runs each target that long (bolero prints
+//! the inputs tried). Longer runs: `cargo bolero test --engine libfuzzer fuzz_<target>` (nightly),
 //! which uses the same corpus.
 
 mod common;
@@ -40,6 +43,18 @@ fn iterations() -> usize {
         .unwrap_or(300)
 }
 
+/// Each check's inputs and time: `PRISM_FUZZ_SECONDS` (a target's total, split between its two
+/// checks) runs for that long whatever the count; otherwise [`iterations`] inputs.
+fn budget() -> (usize, std::time::Duration) {
+    match std::env::var("PRISM_FUZZ_SECONDS")
+        .ok()
+        .and_then(|s| s.parse::<u64>().ok())
+    {
+        Some(s) => (usize::MAX, std::time::Duration::from_secs(s.div_ceil(2))),
+        None => (iterations(), std::time::Duration::MAX),
+    }
+}
+
 /// Valid inputs of every reader, made once per test process.
 struct Seeds {
     _dir: tempfile::TempDir,
@@ -50,6 +65,12 @@ struct Seeds {
     /// A 4D-SG run of the scene (model, stage-1 checkpoint).
     run: PathBuf,
     scene_config: Vec<u8>,
+    /// An import: `import.yaml`, its line integrals `p.npy` and flat field `flat.tif`.
+    import: PathBuf,
+    /// Resume files of a tiny R²-Gaussian run and a tiny NAF run, each stopped after its first
+    /// iteration.
+    resume: PathBuf,
+    naf_resume: PathBuf,
 }
 
 fn seeds() -> &'static Seeds {
@@ -85,11 +106,22 @@ fn seeds() -> &'static Seeds {
             &options,
         )
         .unwrap();
+        let import = dir.path().join("import");
+        write_import(&import);
+        let resume = dir.path().join("r2gs.ckpt");
+        let naf_resume = dir.path().join("naf.ckpt");
+        for (config, ckpt) in [(tiny_r2gs(), &resume), (tiny_naf(), &naf_resume)] {
+            let e = resumed_run(&config, &s, &dir.path().join("stopped"), ckpt, false);
+            assert!(e.is_err_and(|e| e.contains("interrupted")) && ckpt.is_file());
+        }
         Seeds {
             scene,
             r2,
             run: run_dir,
             scene_config: cfg.into_bytes(),
+            import,
+            resume,
+            naf_resume,
             _dir: dir,
         }
     })
@@ -105,6 +137,75 @@ fn tiny_4dsg() -> FourDsgConfig {
     s2.curve_model.width = 4;
     s2.curve_model.depth = 1;
     c
+}
+
+fn tiny_r2gs() -> MethodConfig {
+    MethodConfig::from_yaml(
+        "method: r2gs\niterations: 6\ninit: { n_points: 40 }\ndensify: null\neval_every: 0\n",
+        Path::new("r2gs.yaml"),
+    )
+    .unwrap()
+}
+
+fn tiny_naf() -> MethodConfig {
+    MethodConfig::from_yaml(
+        "method: naf\niterations: 6\nrays_per_batch: 32\nsamples_per_ray: 8\neval_every: 100\n\
+         field: {width: 8, hash_grid: {levels: 2, base_resolution: 4, growth: 2.0, \
+         log2_table_size: 6}}\n",
+        Path::new("naf.yaml"),
+    )
+    .unwrap()
+}
+
+/// Run `config` on `scene` into `out` with the checkpoint `ckpt`: stopped after its first
+/// iteration (`resume` false), or resumed from it; Ok or the error's text.
+fn resumed_run(
+    config: &MethodConfig,
+    scene: &Scene,
+    out: &Path,
+    ckpt: &Path,
+    resume: bool,
+) -> Result<(), String> {
+    let stop = std::sync::atomic::AtomicBool::new(!resume);
+    let options = RunOptions {
+        device: cpu_device(),
+        from_geometry: None,
+        observer: &Silent,
+        evaluation: &Evaluation::default(),
+        checkpoint: Some(prism_recon::setup::Checkpointing {
+            path: ckpt.to_path_buf(),
+            resume,
+            stop: Some(&stop),
+        }),
+    };
+    let dir = RunDir::create(out, true).map_err(|e| e.to_string())?;
+    run(config, scene, dir, &options)
+        .map(|_| ())
+        .map_err(|e| e.to_string())
+}
+
+/// An import of a 6-view line-integral scan (12 × 12 detector) with a two-page TIFF flat field.
+fn write_import(dir: &Path) {
+    std::fs::create_dir_all(dir).unwrap();
+    let p =
+        ndarray::Array3::<f32>::from_shape_fn((6, 12, 12), |(v, r, c)| 0.01 * (v + r + c) as f32);
+    ndarray_npy::write_npy(dir.join("p.npy"), &p).unwrap();
+    let flat = std::fs::File::create(dir.join("flat.tif")).unwrap();
+    let mut tif = tiff::encoder::TiffEncoder::new(flat).unwrap();
+    for _ in 0..2 {
+        tif.write_image::<tiff::encoder::colortype::Gray16>(12, 12, &[1000u16; 144])
+            .unwrap();
+    }
+    std::fs::write(
+        dir.join("import.yaml"),
+        "name: imported\ngeometry: {prism: {beam: cone, dso: 1000.0, dsd: 1500.0, detector: \
+         {rows: 12, cols: 12, pitch_u: 40.0, pitch_v: 40.0, offset_u: 0.0, offset_v: 0.0}, \
+         volume: {nx: 12, ny: 12, nz: 12, dx: 20.0, dy: 20.0, dz: 20.0, offset: [0.0, 0.0, 0.0]}}}\n\
+         angles: {count: 6, start_deg: 0.0, span_deg: 360.0}\nflat: {path: flat.tif}\n\
+         channels:\n  - {label: a, coordinate: {kind: energy, kev: 60.0}, line_integrals: {path: p.npy}}\n\
+         select: {views: 4, test_views: 1, reference: none}\n",
+    )
+    .unwrap();
 }
 
 /// One reader under test: the file it reads, made from `bytes` in a directory of its own.
@@ -134,13 +235,16 @@ impl Target {
 
     fn fuzz(&self) {
         let work = tempfile::tempdir().unwrap();
+        let (n, time) = budget();
         bolero::check!(name = self.name)
-            .with_iterations(iterations())
+            .with_iterations(n)
+            .with_test_time(time)
             .for_each(|bytes: &[u8]| self.check(work.path(), bytes));
         let seed = (self.seed)(seeds());
         bolero::check!(name = format!("{}_mutations", self.name))
             .with_type::<Vec<Edit>>()
-            .with_iterations(iterations())
+            .with_iterations(n)
+            .with_test_time(time)
             .for_each(|edits: &Vec<Edit>| self.check(work.path(), &mutate(&seed, edits)));
     }
 }
@@ -336,11 +440,91 @@ const GEOMETRY: Target = Target {
         std::fs::write(&path, b).unwrap();
         let scene = Scene::open(&seeds().scene).unwrap();
         let wanted = checkpoint::fingerprint(&tiny_4dsg(), &scene).unwrap();
-        checkpoint::load(&path, &wanted, &cpu_device())
+        checkpoint::load(&path, &wanted, &scene, &cpu_device())
             .map(|_| ())
             .map_err(|e| e.to_string())
     },
 };
+
+const IMPORT_CONFIG: Target = Target {
+    name: "fuzz_import_config",
+    seed: |s| read_file(&s.import.join("import.yaml")),
+    read: |dir, b| {
+        copy_dir(&seeds().import, dir);
+        let path = dir.join("import.yaml");
+        std::fs::write(&path, b).unwrap();
+        let text = String::from_utf8_lossy(b);
+        let config: prism_domain::import::config::ImportConfig =
+            prism_domain::yaml::parse_with(&text, &path, &Default::default())
+                .map_err(|e| e.to_string())?;
+        // What `prism import` does: the estimate first, then (within a small budget) the import.
+        let peak = prism_domain::import::footprint(&config, dir)
+            .map_err(|e| e.in_file(&path).to_string())?;
+        if peak.total() > 1 << 30 {
+            return Err(format!("{}: larger than the fuzz budget", path.display()));
+        }
+        prism_recon::methods::classic::import::import_scene(&config, dir, &text, None, &Silent)
+            .map(|_| ())
+            .map_err(|e| e.in_file(&path).to_string())
+    },
+};
+
+const TIFF: Target = Target {
+    name: "fuzz_tiff",
+    seed: |s| read_file(&s.import.join("flat.tif")),
+    read: |dir, b| {
+        std::fs::write(dir.join("images.tif"), b).unwrap();
+        let source = prism_domain::import::config::ImageSource {
+            path: "images.tif".into(),
+            raw: None,
+            dataset: None,
+            axes: None,
+        };
+        prism_domain::import::images::read_stack(&source, dir, Some([12, 12]))
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    },
+};
+
+/// Resume a tiny run of `config` from `bytes` as its checkpoint.
+fn resume_from(dir: &Path, bytes: &[u8], config: &MethodConfig) -> Result<(), String> {
+    let ckpt = dir.join("run.ckpt");
+    std::fs::write(&ckpt, bytes).unwrap();
+    let scene = Scene::open(&seeds().scene).unwrap();
+    resumed_run(config, &scene, &dir.join("run"), &ckpt, true)
+}
+
+const RESUME: Target = Target {
+    name: "fuzz_resume",
+    seed: |s| read_file(&s.resume),
+    read: |dir, b| resume_from(dir, b, &tiny_r2gs()),
+};
+
+const NAF_RESUME: Target = Target {
+    name: "fuzz_naf_resume",
+    seed: |s| read_file(&s.naf_resume),
+    read: |dir, b| resume_from(dir, b, &tiny_naf()),
+};
+
+#[test]
+fn fuzz_import_config() {
+    IMPORT_CONFIG.fuzz();
+}
+
+#[test]
+fn fuzz_tiff() {
+    TIFF.fuzz();
+}
+
+#[test]
+fn fuzz_resume() {
+    RESUME.fuzz();
+}
+
+#[test]
+fn fuzz_naf_resume() {
+    NAF_RESUME.fuzz();
+}
 
 #[test]
 fn fuzz_scene_yaml() {
@@ -388,7 +572,7 @@ fn fuzz_geometry_checkpoint() {
 #[test]
 fn write_corpus() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/__fuzz__");
-    let targets: [(&Target, Vec<(&str, &str)>); 8] = [
+    let targets: [(&Target, Vec<(&str, &str)>); 12] = [
         (
             &SCENE_YAML,
             vec![("n: 12", "n: 100000"), ("views: 8", "views: 1000000000000")],
@@ -406,6 +590,23 @@ fn write_corpus() {
             vec![("\"density_scale\":\"", "\"density_scale\":\"-")],
         ),
         (&GEOMETRY, vec![("\"steps\":\"[", "\"steps\":\"[-")]),
+        (
+            &IMPORT_CONFIG,
+            vec![
+                ("count: 6", "count: 1000000000000"),
+                ("views: 4", "views: 4, every: 2"),
+                ("p.npy}", "p.npy}, views: [1, 1, 2, 3, 4, 5]"),
+            ],
+        ),
+        (&TIFF, vec![("\x0c\0\0\0", "\x00\x7d\0\0")]),
+        (
+            &RESUME,
+            vec![("\\\"iteration\\\":", "\\\"iteration\\\":99")],
+        ),
+        (
+            &NAF_RESUME,
+            vec![("\\\"iteration\\\":", "\\\"iteration\\\":99")],
+        ),
     ];
     let write = std::env::var_os("PRISM_FUZZ_WRITE_CORPUS").is_some();
     for (target, bad) in targets {

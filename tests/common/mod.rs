@@ -40,3 +40,18 @@ pub fn simulated(
     assert!(ok, "{t}");
     (dir, scene)
 }
+
+/// A `.npy` (version 1) whose header declares `descr` and `shape` (Python tuple syntax),
+/// followed by `data` bytes: written by hand, an independent writer that can also lie.
+pub fn npy_with_header(path: &std::path::Path, descr: &str, shape: &str, data: &[u8]) {
+    let mut dict = format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
+    while !(10 + dict.len() + 1).is_multiple_of(64) {
+        dict.push(' ');
+    }
+    dict.push('\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend((dict.len() as u16).to_le_bytes());
+    out.extend(dict.as_bytes());
+    out.extend(data);
+    std::fs::write(path, out).unwrap();
+}

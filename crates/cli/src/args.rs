@@ -62,10 +62,11 @@ impl EvalArgs {
         let grid = match self.grid.as_str() {
             "native" => None,
             n => match n.parse::<usize>() {
-                Ok(n) if (2..=4096).contains(&n) => Some(n),
-                _ => anyhow::bail!(
-                    "--eval-grid: expected `native` or an edge length in 2..=4096, got `{n}`"
-                ),
+                Ok(n) => {
+                    Protocol::check_grid(Some(n), "--eval-grid")?;
+                    Some(n)
+                }
+                _ => anyhow::bail!("--eval-grid: expected `native` or an edge length, got `{n}`"),
             },
         };
         let slices = match self.slices {

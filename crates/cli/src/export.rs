@@ -24,6 +24,10 @@ pub struct Args {
     /// nii, nii.gz, mha, tif, or png (a preview of the central slices); repeatable.
     #[arg(long = "format", required = true, value_parser = parse_format)]
     formats: Vec<VolumeFormat>,
+    /// Replace output files that exist (without it, an existing file stops the export before
+    /// anything is written).
+    #[arg(long)]
+    force: bool,
 }
 
 fn parse_format(s: &str) -> Result<VolumeFormat, String> {
@@ -67,6 +71,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
             add(stem, Source::File(file), v)?;
+        }
+    }
+    if !args.force {
+        for stem in sources.keys() {
+            for format in &args.formats {
+                let path = format.path(&args.out, stem);
+                if std::fs::symlink_metadata(&path).is_ok() {
+                    bail!(
+                        "{} exists; pass --force to replace it (nothing was written)",
+                        path.display()
+                    );
+                }
+            }
         }
     }
     std::fs::create_dir_all(&args.out)

@@ -6,7 +6,11 @@
 //! a curve run whose channels are energies, the curve query at that energy.
 
 use ndarray::Array3;
+use prism_domain::memory::{self, Footprint};
+use prism_domain::scene::npy::npy_bytes;
+use prism_domain::staged;
 use prism_recon::device::cpu_device;
+use prism_recon::gaussians::io::LoadedModel;
 use prism_recon::methods::fourdsg::query::BasisModel;
 use prism_recon::methods::fourdsg::query::{Query, QueryAt};
 use prism_recon::record::RunDir;
@@ -35,19 +39,58 @@ pub struct Args {
     /// Allow τ outside the observed grid (linear extension of the end segments).
     #[arg(long)]
     extrapolate: bool,
+    /// Replace the output file when it exists.
+    #[arg(long)]
+    force: bool,
+    #[command(flatten)]
+    memory: crate::args::MemoryArgs,
+}
+
+/// The query's peak memory: the model as loaded, the output array and its file's bytes.
+fn footprint(loaded: &LoadedModel, projections: bool) -> anyhow::Result<Footprint> {
+    let g = &loaded.info.geometry;
+    let (what, n) = if projections {
+        let dims = [g.views(), g.detector.rows, g.detector.cols];
+        ("projections", memory::elements("geometry.detector", &dims)?)
+    } else {
+        let v = &g.volume;
+        (
+            "volume",
+            memory::elements("geometry.volume", &[v.nz, v.ny, v.nx])?,
+        )
+    };
+    let k = loaded.model.len();
+    let columns = 10 + loaded.info.channels.len();
+    let mut f = Footprint::process();
+    f.add(
+        format!("the model ({k} Gaussians, host and device copies)"),
+        memory::bytes(k, 4 * columns * 3),
+    );
+    f.add(
+        format!("the {what} rendered, its accumulator and its file ({n} values)"),
+        memory::bytes(n, 12),
+    );
+    Ok(f)
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let path = RunDir::spectral_model(&args.run_dir)?;
+    let what = format!("querying {}", args.run_dir.display());
     if let Some(kev) = args.kev
         && let Some(b) = BasisModel::open(&path, &cpu_device())?
     {
+        if !args
+            .memory
+            .proceed(&path, &what, &footprint(&b.loaded, args.projections)?)?
+        {
+            return Ok(());
+        }
         let data = if args.projections {
             b.vmi_projections(kev)?
         } else {
             b.vmi(kev)?
         };
-        write(&args.out, &data)?;
+        write(&args.out, &data, args.force)?;
         if b.extrapolates(kev) {
             eprintln!(
                 "warning: {kev} keV lies outside the trained channels' energies ({:?} keV): the \
@@ -65,6 +108,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     let q = Query::open(&path, &cpu_device())?;
+    if !args
+        .memory
+        .proceed(&path, &what, &footprint(&q.loaded, args.projections)?)?
+    {
+        return Ok(());
+    }
     let at = match (args.coordinate, args.tau, args.kev) {
         (Some(c), _, _) => QueryAt::Coordinate(c),
         (None, Some(t), _) => QueryAt::Tau(t),
@@ -86,7 +135,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         q.volume(at, args.extrapolate)?
     };
-    write(&args.out, &data)?;
+    write(&args.out, &data, args.force)?;
     let info = &q.loaded.info;
     eprintln!(
         "τ = {:.4} (observed: {}) → {} {:?}",
@@ -103,7 +152,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn write(out: &Path, data: &Array3<f32>) -> anyhow::Result<()> {
-    ndarray_npy::write_npy(out, data)
-        .map_err(|e| anyhow::anyhow!("{}: writing failed: {e}", out.display()))
+/// Write the output atomically (a full disk leaves no partial file); an existing file only
+/// with `--force`.
+fn write(out: &Path, data: &Array3<f32>, force: bool) -> anyhow::Result<()> {
+    Ok(staged::publish_file(out, &npy_bytes(data)?, force)?)
 }

@@ -34,13 +34,16 @@ pub fn run_cmd(args: ReconArgs) -> anyhow::Result<()> {
     let mut config = MethodConfig::load_with(&args.config, &args.set.overrides()?)?;
     let scene = Scene::open(&args.scene)?;
     let what = format!("{} on {}", config.method().name(), args.scene.display());
-    if !args
-        .memory
-        .proceed(&args.config, &what, &footprint(&config, &scene))?
-    {
+    let evaluation = args.eval.evaluation()?;
+    let mut peak = footprint(&config, &scene);
+    if scene.references.is_some() {
+        evaluation
+            .protocol
+            .add_footprint(&mut peak, scene.geometry.volume.len());
+    }
+    if !args.memory.proceed(&args.config, &what, &peak)? {
         return Ok(());
     }
-    let evaluation = args.eval.evaluation()?;
     let bars = Bars::new();
     let options = args
         .gaussian

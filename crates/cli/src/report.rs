@@ -1,7 +1,7 @@
 //! `prism report <run_dir>...`: one per-channel PSNR/SSIM table over finished runs (see
 //! `prism_recon::report`), with the paths of the written volumes.
 
-use prism_recon::report::{RunScores, table};
+use prism_recon::report::{RunScores, column_names, table};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -19,8 +19,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .collect::<Result<Vec<_>, _>>()?;
     print!("{}", table(&runs));
     println!();
-    for r in &runs {
-        println!("{} volumes (mm⁻¹, [z][y][x]):", r.method);
+    for (r, name) in runs.iter().zip(column_names(&runs)) {
+        println!("{name} volumes (mm⁻¹, [z][y][x]):");
         for c in &r.channels {
             println!("  {}", c.volume.display());
         }

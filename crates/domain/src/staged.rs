@@ -143,6 +143,12 @@ impl Staged {
                 ),
             ));
         }
+        // A leftover of an earlier publication is cleared before anything moves, so that a
+        // leftover that cannot be removed stops publishing with every file where it was.
+        let old = self.parent.join(hidden(&self.name, "old"));
+        if old.exists() {
+            fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))?;
+        }
         let mut moved = Vec::new();
         let result = (|| {
             for n in &foreign {
@@ -161,10 +167,6 @@ impl Staged {
             put_back(&moved);
             return Err(e);
         }
-        let old = self.parent.join(hidden(&self.name, "old"));
-        if old.exists() {
-            fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))?;
-        }
         if let Err(e) = fs::rename(&self.target, &old).map_err(|e| Error::io(&self.target, e)) {
             put_back(&moved);
             return Err(e);
@@ -173,7 +175,19 @@ impl Staged {
             fs::rename(&self.staging, &self.target).map_err(|e| Error::io(&self.target, e))
         });
         if let Err(e) = swapped {
-            fs::rename(&old, &self.target).map_err(|r| Error::io(&old, r))?;
+            if let Err(r) = fs::rename(&old, &self.target) {
+                // The user's files stay in the staging directory, which is then kept.
+                self.published = true;
+                return Err(Error::io(
+                    &old,
+                    std::io::Error::other(format!(
+                        "{r}, after {e}: the previous output is in `{}`, the files kept from it \
+                         in `{}`",
+                        old.display(),
+                        self.staging.display()
+                    )),
+                ));
+            }
             put_back(&moved);
             return Err(e);
         }
@@ -243,6 +257,25 @@ pub fn replace_file(path: &Path, bytes: &[u8]) -> Result<()> {
         sync_dir(dir);
     }
     Ok(())
+}
+
+/// Write the new file `path` atomically ([`replace_file`]); an existing file is refused unless
+/// `force` (the command's `--force`), so a command never silently replaces a file it was not
+/// asked to.
+pub fn publish_file(path: &Path, bytes: &[u8], force: bool) -> Result<()> {
+    if !force && fs::symlink_metadata(path).is_ok() {
+        return Err(Error::invalid(
+            "output",
+            format!("`{}` exists; pass --force to replace it", path.display()),
+        ));
+    }
+    if path.is_dir() {
+        return Err(Error::invalid(
+            "output",
+            format!("`{}` is a directory", path.display()),
+        ));
+    }
+    replace_file(path, bytes)
 }
 
 /// Flush a directory's entries (best effort: not every platform can open a directory).

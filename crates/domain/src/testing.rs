@@ -205,3 +205,20 @@ pub fn write_r2_case(dir: &Path) -> (Vec<Array2<f32>>, Array3<f32>) {
     std::fs::write(dir.join(crate::scene::R2_META_FILE), meta.to_string()).unwrap();
     (imgs, vol)
 }
+
+/// A copy of safetensors file `from` at `to` with its JSON metadata entry `key` changed by `edit`.
+pub fn edit_metadata(from: &Path, to: &Path, key: &str, edit: impl FnOnce(&mut serde_json::Value)) {
+    let bytes = std::fs::read(from).unwrap();
+    let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let mut header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
+    let entry = &mut header["__metadata__"][key];
+    let mut value: serde_json::Value = serde_json::from_str(entry.as_str().unwrap()).unwrap();
+    edit(&mut value);
+    *entry = serde_json::Value::String(value.to_string());
+    let mut text = header.to_string().into_bytes();
+    text.resize(text.len().next_multiple_of(8), b' ');
+    let mut out = (text.len() as u64).to_le_bytes().to_vec();
+    out.extend_from_slice(&text);
+    out.extend_from_slice(&bytes[8 + n..]);
+    std::fs::write(to, out).unwrap();
+}

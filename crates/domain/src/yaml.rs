@@ -65,14 +65,29 @@ impl Override {
     }
 }
 
+/// The most segments a `--set` key may have (a key nesting deeper than any config would build a
+/// document whose recursive drop and serialisation overflow the stack).
+pub const MAX_KEY_DEPTH: usize = 32;
+
 impl std::str::FromStr for Override {
     type Err = Error;
 
     fn from_str(s: &str) -> Result<Self> {
-        let bad = |m: &str| Error::invalid("--set", format!("`{s}`: {m}"));
+        // The setting as the error quotes it: its first 120 characters.
+        let shown: String = match s.char_indices().nth(120) {
+            Some((i, _)) => format!("{}…", &s[..i]),
+            None => s.to_string(),
+        };
+        let bad = |m: &str| Error::invalid("--set", format!("`{shown}`: {m}"));
         let (key, value) = s
             .split_once('=')
             .ok_or_else(|| bad("expected key.path=value"))?;
+        let segments = key.trim().split('.').count();
+        if segments > MAX_KEY_DEPTH {
+            return Err(bad(&format!(
+                "a key of {segments} segments; no config nests more than {MAX_KEY_DEPTH} deep"
+            )));
+        }
         let key: Vec<String> = key.trim().split('.').map(str::to_string).collect();
         if key.iter().any(|k| k.is_empty()) {
             return Err(bad("empty key segment"));
@@ -264,6 +279,7 @@ mod tests {
 
     #[test]
     fn bad_overrides_are_refused_with_the_key() {
+        let deep = format!("{}=1", vec!["a"; 50_000].join("."));
         for (item, needle) in [
             ("novalue", "expected key.path=value"),
             ("a..b=1", "empty key segment"),
@@ -271,6 +287,7 @@ mod tests {
             ("list.x=1", "expected an index"),
             ("list.5.k=1", "index 5 out of range (the list has 2)"),
             ("a=[1,", "not YAML"),
+            (deep.as_str(), "50000 segments"),
         ] {
             let e = set(&mut doc(), &[item]).unwrap_err().to_string();
             assert!(e.contains(needle), "{item}: {e}");

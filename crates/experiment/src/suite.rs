@@ -318,6 +318,7 @@ impl Suite {
         if let Some(r) = &self.evaluation.roi {
             r.validate().map_err(|e| e.under("evaluation.roi"))?;
         }
+        prism_recon::evaluate::Protocol::check_grid(self.evaluation.grid, "evaluation.grid")?;
         if self.studies.is_empty() {
             return bad("studies".into(), "at least one study is required".into());
         }

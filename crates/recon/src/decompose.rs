@@ -21,6 +21,8 @@ use prism_domain::metrics::psnr::psnr;
 use prism_domain::observe::{Level, Observer};
 use prism_domain::physics::{ChannelSpec, Material};
 use prism_domain::scene::Scene;
+use prism_domain::scene::npy::npy_bytes;
+use prism_domain::staged::{Staged, replace_file};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -116,6 +118,10 @@ pub fn decompose(request: &Request, observer: &dyn Observer) -> Result<Report> {
             ),
         ));
     }
+    // Written beside `out` and published by rename: a second decompose into the same directory
+    // while this one runs is refused, and a failure (a full disk) leaves nothing behind.
+    let staged = Staged::create(out)?;
+    let dir = staged.path();
     let run_basis = BasisModel::open(&request.run_dir.join(RunDir::MODEL), &cpu_device())?;
     let materials = match (&request.basis, &run_basis) {
         (Some(names), _) => names
@@ -227,19 +233,18 @@ pub fn decompose(request: &Request, observer: &dyn Observer) -> Result<Report> {
             true_vmis = truth_vmis;
         }
     }
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let mut files = Vec::new();
     for (m, f) in materials.iter().zip(&fractions) {
-        files.push(write(out, &format!("{}.npy", m.name()), f)?);
+        files.push(write(dir, &format!("{}.npy", m.name()), f)?);
     }
     let mut vmi_report = Vec::new();
     for (i, (&kev, v)) in request.kev.iter().zip(&vmis).enumerate() {
         vmi_report.push(Vmi {
             kev,
-            file: write(out, &format!("vmi-{kev}keV.npy"), v)?,
+            file: write(dir, &format!("vmi-{kev}keV.npy"), v)?,
             truth: true_vmis
                 .get(i)
-                .map(|t| write(out, &format!("vmi-{kev}keV.truth.npy"), t))
+                .map(|t| write(dir, &format!("vmi-{kev}keV.truth.npy"), t))
                 .transpose()?,
             extrapolated: outside(kev),
         });
@@ -267,10 +272,11 @@ pub fn decompose(request: &Request, observer: &dyn Observer) -> Result<Report> {
         against_references,
         against_truth,
     };
-    let path = out.join(REPORT_FILE);
     let json = serde_json::to_string_pretty(&report)
         .map_err(|e| Error::invalid(REPORT_FILE, e.to_string()))?;
-    std::fs::write(&path, json).map_err(|e| Error::io(&path, e))?;
+    replace_file(&dir.join(REPORT_FILE), json.as_bytes())?;
+    // The output appears whole or not at all; it was empty or absent when the work began.
+    staged.publish(|_| Ok(Default::default()))?;
     Ok(report)
 }
 
@@ -316,11 +322,9 @@ fn score(
     })
 }
 
-/// Write `a` as `<dir>/<name>`; the file name.
+/// Write `a` as `<dir>/<name>`, flushed; the file name.
 fn write(dir: &Path, name: &str, a: &Array3<f32>) -> Result<String> {
-    let path = dir.join(name);
-    ndarray_npy::write_npy(&path, a)
-        .map_err(|e| Error::invalid(path.display().to_string(), e.to_string()))?;
+    replace_file(&dir.join(name), &npy_bytes(a)?)?;
     Ok(name.to_string())
 }
 
@@ -328,8 +332,7 @@ fn write(dir: &Path, name: &str, a: &Array3<f32>) -> Result<String> {
 /// finite.
 fn read_volume(path: &Path, shape: [usize; 3]) -> Result<Array3<f32>> {
     let file = path.display().to_string();
-    let v: Array3<f32> = ndarray_npy::read_npy(path)
-        .map_err(|e| Error::invalid(&file, format!("reading the volume: {e}")))?;
+    let v: Array3<f32> = prism_domain::scene::npy::read_array(path, "volume")?;
     if v.shape() != shape {
         return Err(Error::invalid(
             &file,

@@ -157,16 +157,10 @@ pub fn write_volume(
     write_atomically(path, &out)
 }
 
-/// Write `bytes` to a temporary file beside `path`, then rename it over `path`.
+/// Write `bytes` to a hidden sibling of `path`, flushed, then renamed over it (the file gets
+/// the user's umask, like any file the user creates).
 fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| Error::io(dir, e))?;
-    tmp.write_all(bytes).map_err(|e| Error::io(path, e))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    Ok(())
+    crate::staged::replace_file(path, bytes)
 }
 
 /// Read a `[z][y][x]` f32 volume from a `.npy` file (errors name the file).

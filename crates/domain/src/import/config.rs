@@ -342,6 +342,24 @@ impl ImportConfig {
     }
 }
 
+/// Refuse an angle `count` whose angles and one f32 per view already exceed the memory
+/// available, before any is made (a count of 10¹² would abort the process, even in a
+/// `--dry-run`); the full estimate, with the detector, follows in `import::footprint`.
+fn check_view_count(n: usize) -> Result<()> {
+    let need = crate::memory::bytes(n, 12);
+    match crate::memory::available() {
+        Some(a) if need > a => Err(Error::invalid(
+            "angles.count",
+            format!(
+                "{n} views need {} for their angles alone; {} is available",
+                crate::memory::human(need),
+                crate::memory::human(a)
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 impl AngleSpec {
     /// The angles in radians (`read` reads a file of values; paths are the caller's concern).
     pub fn resolve(&self, read: impl Fn(&std::path::Path) -> Result<Vec<f64>>) -> Result<Vec<f64>> {
@@ -363,6 +381,7 @@ impl AngleSpec {
             ));
         }
         let angles = if let Some(n) = self.count {
+            check_view_count(n)?;
             let span = self.span_deg.unwrap_or(360.0);
             Geometry::uniform_angles(n, self.start_deg.to_radians(), span.to_radians())
         } else if let Some(d) = &self.deg {

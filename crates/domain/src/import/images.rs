@@ -11,8 +11,13 @@ use std::path::{Path, PathBuf};
 use tiff::decoder::{Decoder, DecodingResult};
 
 /// Read `source` (paths relative to `base`) as a stack `[n][rows][cols]`; a single image is a
-/// stack of one.
-pub fn read_stack(source: &ImageSource, base: &Path) -> Result<Array3<f32>> {
+/// stack of one. With `image` (the detector's `[rows, cols]`), a TIFF page of another size is
+/// refused as its header is read, before it is decoded.
+pub fn read_stack(
+    source: &ImageSource,
+    base: &Path,
+    image: Option<[usize; 2]>,
+) -> Result<Array3<f32>> {
     let path = base.join(&source.path);
     if path.is_dir() {
         if source.raw.is_some() {
@@ -22,7 +27,7 @@ pub fn read_stack(source: &ImageSource, base: &Path) -> Result<Array3<f32>> {
                 "a directory of images cannot be read as one raw file",
             ));
         }
-        return read_dir(&path);
+        return read_dir(&path, image);
     }
     if source.dataset.is_some() || super::hdf5::is_hdf5(&path) {
         if source.raw.is_some() {
@@ -49,16 +54,20 @@ pub fn read_stack(source: &ImageSource, base: &Path) -> Result<Array3<f32>> {
             "only HDF5 datasets take `axes`",
         ));
     }
-    read_file(&path, source.raw.as_ref())
+    read_file(&path, source.raw.as_ref(), image)
 }
 
 /// One file: a stack, or a single image as a stack of one.
-fn read_file(path: &Path, raw: Option<&RawLayout>) -> Result<Array3<f32>> {
+fn read_file(
+    path: &Path,
+    raw: Option<&RawLayout>,
+    image: Option<[usize; 2]>,
+) -> Result<Array3<f32>> {
     let a = match raw {
         Some(layout) => read_raw(path, layout)?,
         None => match extension(path).as_str() {
             "npy" => crate::scene::npy::read_npy_any(path, "images")?,
-            "tif" | "tiff" => read_tiff(path)?.into_dyn(),
+            "tif" | "tiff" => read_tiff(path, image)?.into_dyn(),
             other => {
                 return Err(Error::field(
                     path,
@@ -105,7 +114,7 @@ fn as_stack(a: ArrayD<f32>, path: &Path) -> Result<Array3<f32>> {
 }
 
 /// Every `.npy` / `.tif` / `.tiff` file of `dir`, in file-name order, one image (or stack) each.
-fn read_dir(dir: &Path) -> Result<Array3<f32>> {
+fn read_dir(dir: &Path, image: Option<[usize; 2]>) -> Result<Array3<f32>> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| Error::io(dir, e))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -117,7 +126,7 @@ fn read_dir(dir: &Path) -> Result<Array3<f32>> {
     }
     let stacks: Vec<Array3<f32>> = files
         .iter()
-        .map(|f| read_file(f, None))
+        .map(|f| read_file(f, None, image))
         .collect::<Result<_>>()?;
     let first = stacks[0].shape()[1..].to_vec();
     if let Some(k) = stacks.iter().position(|s| s.shape()[1..] != first[..]) {
@@ -135,8 +144,10 @@ fn read_dir(dir: &Path) -> Result<Array3<f32>> {
     ndarray::concatenate(Axis(0), &views).map_err(|e| Error::field(dir, "images", e.to_string()))
 }
 
-/// Every page of a TIFF file (grayscale, one sample per pixel).
-fn read_tiff(path: &Path) -> Result<Array3<f32>> {
+/// Every page of a TIFF file (grayscale, one sample per pixel). Each page's size is checked as
+/// its header is read, against `image` (`[rows, cols]`) when given and against the memory
+/// available, before the page is decoded (a small compressed file can declare gigabytes).
+fn read_tiff(path: &Path, image: Option<[usize; 2]>) -> Result<Array3<f32>> {
     let bad = |m: String| Error::field(path, "tiff", m);
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let mut d = Decoder::new(BufReader::new(file)).map_err(|e| bad(e.to_string()))?;
@@ -151,6 +162,26 @@ fn read_tiff(path: &Path) -> Result<Array3<f32>> {
             return Err(bad(format!(
                 "page {n} is {}×{}, page 0 {}×{}",
                 dims.0, dims.1, s.0, s.1
+            )));
+        }
+        if let Some([rows, cols]) = image
+            && (dims.1 as usize, dims.0 as usize) != (rows, cols)
+        {
+            return Err(bad(format!(
+                "page {n} is {}×{} (width × height); the detector is {cols}×{rows}",
+                dims.0, dims.1
+            )));
+        }
+        let page = crate::memory::bytes(dims.0 as usize * dims.1 as usize, 4);
+        let held = crate::memory::bytes(pages.len(), 4);
+        if let Some(a) = crate::memory::available()
+            && held.saturating_add(page.saturating_mul(2)) > a
+        {
+            return Err(bad(format!(
+                "page {n} ({}×{}) would take the pages read past the {} of memory available",
+                dims.0,
+                dims.1,
+                crate::memory::human(a)
             )));
         }
         shape = Some(dims);

@@ -61,12 +61,12 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
     let shared_flat = config
         .flat
         .as_ref()
-        .map(|f| mean_image(f, base, "flat"))
+        .map(|f| mean_image(f, base, "flat", [rows, cols]))
         .transpose()?;
     let shared_dark = config
         .dark
         .as_ref()
-        .map(|f| mean_image(f, base, "dark"))
+        .map(|f| mean_image(f, base, "dark", [rows, cols]))
         .transpose()?;
     let m = config.channels.len();
     let mut projections = Array4::<f32>::zeros((m, n_views, rows, cols));
@@ -79,15 +79,24 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
             Some(v) => v.clone(),
             None => (0..n_views).collect(),
         };
-        if let Some((i, &v)) = views.iter().enumerate().find(|(_, v)| **v >= n_views) {
-            return Err(Error::invalid(
-                format!("channels[{c}].views[{i}]"),
-                format!("view {v} is beyond the scan's {n_views} views"),
-            ));
+        let mut seen = vec![false; n_views];
+        for (i, &v) in views.iter().enumerate() {
+            if v >= n_views {
+                return Err(Error::invalid(
+                    format!("channels[{c}].views[{i}]"),
+                    format!("view {v} is beyond the scan's {n_views} views"),
+                ));
+            }
+            if std::mem::replace(&mut seen[v], true) {
+                return Err(Error::invalid(
+                    format!("channels[{c}].views[{i}]"),
+                    format!("view {v} is listed twice (each image must be one view)"),
+                ));
+            }
         }
         let (stack, from) = match (&src.counts, &src.line_integrals) {
-            (Some(s), None) => (read_stack(s, base)?, s),
-            (None, Some(s)) => (read_stack(s, base)?, s),
+            (Some(s), None) => (read_stack(s, base, Some([rows, cols]))?, s),
+            (None, Some(s)) => (read_stack(s, base, Some([rows, cols]))?, s),
             _ => {
                 return Err(Error::invalid(
                     field("counts"),
@@ -109,11 +118,11 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
         }
         let mut p = if src.counts.is_some() {
             let flat = match &src.flat {
-                Some(f) => Some(mean_image(f, base, &field("flat"))?),
+                Some(f) => Some(mean_image(f, base, &field("flat"), [rows, cols])?),
                 None => shared_flat.clone(),
             };
             let dark = match &src.dark {
-                Some(f) => Some(mean_image(f, base, &field("dark"))?),
+                Some(f) => Some(mean_image(f, base, &field("dark"), [rows, cols])?),
                 None => shared_dark.clone(),
             };
             let Some(flat) = flat else {
@@ -264,8 +273,14 @@ pub fn footprint(config: &ImportConfig, base: &Path) -> Result<Footprint> {
     Ok(f)
 }
 
-fn mean_image(source: &config::ImageSource, base: &Path, field: &str) -> Result<Array2<f32>> {
-    let stack = read_stack(source, base).map_err(|e| e.under(field))?;
+/// The mean of a stack of `[rows, cols]` images (flat or dark fields).
+fn mean_image(
+    source: &config::ImageSource,
+    base: &Path,
+    field: &str,
+    image: [usize; 2],
+) -> Result<Array2<f32>> {
+    let stack = read_stack(source, base, Some(image)).map_err(|e| e.under(field))?;
     stack
         .mean_axis(Axis(0))
         .ok_or_else(|| Error::invalid(field, "holds no image"))

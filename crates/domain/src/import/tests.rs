@@ -109,12 +109,12 @@ fn raw_files_are_read_in_either_byte_order_and_their_size_is_checked() {
         dataset: None,
         axes: None,
     };
-    let a = images::read_stack(&src("le.raw", false, 0), dir.path()).unwrap();
-    let b = images::read_stack(&src("be.raw", true, 16), dir.path()).unwrap();
+    let a = images::read_stack(&src("le.raw", false, 0), dir.path(), None).unwrap();
+    let b = images::read_stack(&src("be.raw", true, 16), dir.path(), None).unwrap();
     assert_eq!(a.shape(), [1, 2, 3]);
     assert_eq!(a, b);
     assert_eq!(a[[0, 1, 2]], 65535.0);
-    let e = images::read_stack(&src("be.raw", true, 0), dir.path())
+    let e = images::read_stack(&src("be.raw", true, 0), dir.path(), None)
         .unwrap_err()
         .to_string();
     assert!(
@@ -181,18 +181,24 @@ fn hdf5_stacks_come_out_views_rows_columns_in_any_stored_order() {
             .all(|((v, r, c), &x)| x == (100 * v + 10 * r + c) as f32)
     };
     // Data Exchange: chunked, gzip + shuffle, order from the `axes` attribute.
-    let a = images::read_stack(&src("dataexchange.h5", "/exchange/data", None), &base).unwrap();
+    let a =
+        images::read_stack(&src("dataexchange.h5", "/exchange/data", None), &base, None).unwrap();
     assert_eq!(a.shape(), [3, 2, 4]);
     assert!(closed_form(&a), "{a:?}");
     // An integer stack without an `axes` attribute: theta:y:x by default.
-    let w =
-        images::read_stack(&src("dataexchange.h5", "exchange/data_white", None), &base).unwrap();
+    let w = images::read_stack(
+        &src("dataexchange.h5", "exchange/data_white", None),
+        &base,
+        None,
+    )
+    .unwrap();
     assert_eq!(w.shape(), [2, 2, 4]);
     assert!(closed_form(&w));
     // MATLAB v7.3 (512-byte user block): a views × cols sinogram stored column-major.
     let m = images::read_stack(
         &src("matlab73.mat", "/CtData/sinogram", Some("x:theta")),
         &base,
+        None,
     )
     .unwrap();
     assert_eq!(m.shape(), [3, 1, 4]);
@@ -201,10 +207,11 @@ fn hdf5_stacks_come_out_views_rows_columns_in_any_stored_order() {
     let t = images::read_stack(
         &src("matlab73.mat", "/CtData/sinogram", Some("theta:x")),
         &base,
+        None,
     )
     .unwrap();
     assert_eq!(t.shape(), [4, 1, 3]);
-    let e = images::read_stack(&src("dataexchange.h5", "/exchange/dta", None), &base)
+    let e = images::read_stack(&src("dataexchange.h5", "/exchange/dta", None), &base, None)
         .unwrap_err()
         .to_string();
     assert!(
@@ -215,7 +222,7 @@ fn hdf5_stacks_come_out_views_rows_columns_in_any_stored_order() {
         dataset: None,
         ..src("dataexchange.h5", "", None)
     };
-    let e = images::read_stack(&no_dataset, &base)
+    let e = images::read_stack(&no_dataset, &base, None)
         .unwrap_err()
         .to_string();
     assert!(e.contains("needs the dataset's path"), "{e}");

@@ -236,8 +236,8 @@ impl HuVolume {
     /// dimensionality was found when it is not int16 / 3-D.
     pub fn load(path: impl AsRef<Path>, voxel_zyx: [f64; 3]) -> Result<Self> {
         let path = path.as_ref();
-        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-        let hu = Array3::<i16>::read_npy(std::io::BufReader::new(file)).map_err(|e| match e {
+        let file = crate::scene::npy::open_checked(path).map_err(|e| Error::io(path, e))?;
+        let hu = Array3::<i16>::read_npy(file).map_err(|e| match e {
             ReadNpyError::WrongDescriptor(d) => Error::field(
                 path,
                 "dtype",

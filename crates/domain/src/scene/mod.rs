@@ -14,7 +14,7 @@
 mod axis;
 mod gains;
 pub(crate) mod io;
-pub(crate) mod npy;
+pub mod npy;
 mod r2;
 mod summary;
 

@@ -1,10 +1,11 @@
-//! Reading `.npy` arrays safely: the header's declared size is checked against the file before
-//! anything is allocated, any common numeric type can be widened to f32, and every error names
-//! the file and the field.
+//! Reading `.npy` arrays safely: the header's declared size is checked against the file and the
+//! memory available before anything is allocated, any common numeric type can be widened to
+//! f32, and every error names the file and the field. Every `.npy` a command reads goes through
+//! here; [`npy_bytes`] is the writing side.
 
 use crate::{Error, Result};
-use ndarray::ArrayD;
-use ndarray_npy::{ReadNpyError, ReadNpyExt, ReadableElement};
+use ndarray::{Array, ArrayD, Dimension};
+use ndarray_npy::{ReadNpyError, ReadNpyExt, ReadableElement, WriteNpyExt};
 use std::fs;
 use std::io::BufReader;
 use std::path::Path;
@@ -22,7 +23,7 @@ pub(super) fn npy_error(path: &Path, key: &str, want: &str, e: ReadNpyError) -> 
 
 /// Read a `.npy` of any shape and any common numeric type (f32, f64, u8, u16, u32, i16, i32)
 /// as f32; errors name `path` and `field`.
-pub(crate) fn read_npy_any(path: &Path, field: &str) -> Result<ArrayD<f32>> {
+pub fn read_npy_any(path: &Path, field: &str) -> Result<ArrayD<f32>> {
     fn widen<T: ReadableElement + Copy>(
         path: &Path,
         f: impl Fn(T) -> f32,
@@ -50,16 +51,52 @@ pub(crate) fn read_npy_any(path: &Path, field: &str) -> Result<ArrayD<f32>> {
 }
 
 /// Read an f32 `.npy` of any shape; errors name `path` and `field` (and the dtype found).
-pub(crate) fn read_npy_f32(path: &Path, field: &str) -> Result<ArrayD<f32>> {
+pub fn read_npy_f32(path: &Path, field: &str) -> Result<ArrayD<f32>> {
     read_npy::<f32>(path).map_err(|e| npy_error(path, field, "f32 ('<f4')", e))
+}
+
+/// Read a `.npy` of element type `T` and dimension `D` (e.g. `Array3<f32>`); errors name `path`
+/// and `field`, with the dtype or the number of axes found.
+pub fn read_array<T: ReadableElement, D: Dimension>(
+    path: &Path,
+    field: &str,
+) -> Result<Array<T, D>> {
+    let want = std::any::type_name::<T>();
+    let a = read_npy::<T>(path).map_err(|e| npy_error(path, field, want, e))?;
+    let found = a.ndim();
+    a.into_dimensionality::<D>().map_err(|_| {
+        Error::field(
+            path,
+            field,
+            format!(
+                "expected a {}-D array, found {found}-D",
+                D::NDIM.map_or("n".into(), |n| n.to_string())
+            ),
+        )
+    })
+}
+
+/// The `.npy` file of `array` (for [`crate::staged::publish_file`]).
+pub fn npy_bytes<A: WriteNpyExt + ?Sized>(array: &A) -> Result<Vec<u8>> {
+    let mut out = Vec::new();
+    array
+        .write_npy(&mut out)
+        .map_err(|e| Error::invalid("array", format!("cannot be written as .npy: {e}")))?;
+    Ok(out)
 }
 
 pub(super) fn read_npy<T: ReadableElement>(
     path: &Path,
 ) -> std::result::Result<ArrayD<T>, ReadNpyError> {
-    let mut f = fs::File::open(path).map_err(ReadNpyError::Io)?;
-    check_npy_size(&mut f).map_err(ReadNpyError::Io)?;
-    ArrayD::<T>::read_npy(BufReader::new(f))
+    ArrayD::<T>::read_npy(open_checked(path).map_err(ReadNpyError::Io)?)
+}
+
+/// `path` opened for a `.npy` reader once its header's declared size is checked against the
+/// file and the memory available ([`check_npy_size`]).
+pub(crate) fn open_checked(path: &Path) -> std::io::Result<BufReader<fs::File>> {
+    let mut f = fs::File::open(path)?;
+    check_npy_size(&mut f)?;
+    Ok(BufReader::new(f))
 }
 
 /// Refuse a `.npy` whose header declares more data than the file holds before anything is
@@ -115,7 +152,15 @@ fn check_npy_size(f: &mut fs::File) -> std::io::Result<()> {
     let data = shape.iter().try_fold(item, |a, &n| a.checked_mul(n));
     let held = file_len - prefix - header_len;
     match data {
-        Some(bytes) if bytes <= held => Ok(()),
+        Some(bytes) if bytes <= held => match crate::memory::available() {
+            // Read, then widened to f32 at most: twice the data in the worst case.
+            Some(a) if bytes.saturating_mul(2) > a => Err(bad(format!(
+                "its {} of data do not fit the {} of memory available",
+                crate::memory::human(bytes),
+                crate::memory::human(a)
+            ))),
+            _ => Ok(()),
+        },
         _ => Err(bad(format!(
             "its header declares shape {shape:?} of {descr} ({} bytes of data); the file holds {held} after its header",
             data.map_or("more than 2⁶⁴".to_string(), |b| b.to_string()),

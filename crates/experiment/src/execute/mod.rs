@@ -185,13 +185,19 @@ pub fn run_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Res
     if let Some(d) = options.device {
         config.set_device(d);
     }
-    footprint(&config, &scene).check(&format!("run cell `{}`", cell.key), options.allow_memory)?;
+    let evaluation = cell_evaluation(plan, i, options).1;
+    let mut peak = footprint(&config, &scene);
+    if scene.references.is_some() {
+        evaluation
+            .protocol
+            .add_footprint(&mut peak, scene.geometry.volume.len());
+    }
+    peak.check(&format!("run cell `{}`", cell.key), options.allow_memory)?;
     let record = cell_record(plan, i, options)?;
     let target = plan.run_dir(out, i);
     create_parent(&target)?;
     let mut dir = RunDir::create(&target, true)?;
     dir.write_json(CELL_RECORD, &record)?;
-    let evaluation = cell_evaluation(plan, i, options).1;
     let run_options = RunOptions {
         device: config.device().device()?,
         from_geometry: None,

@@ -19,7 +19,7 @@ use prism_recon::record::RunDir;
 use std::path::Path;
 
 fn read_volume(path: &Path) -> Option<Array3<f32>> {
-    ndarray_npy::read_npy(path).ok()
+    prism_domain::scene::npy::read_array(path, "volume").ok()
 }
 
 /// The channels a montage shows: all of up to three, else the first and the last.

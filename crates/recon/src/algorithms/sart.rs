@@ -76,11 +76,13 @@ impl SartOptions {
         if self.block_size == 0 {
             return Err(Error::invalid("block_size", "must be at least 1"));
         }
-        if !(self.lambda.is_finite() && self.lambda > 0.0) {
+        // Block-iterative SART converges for relaxations in (0, 2) (Censor & Elfving); beyond,
+        // each sweep overshoots and the result is noise, not a reconstruction.
+        if !(self.lambda > 0.0 && self.lambda < 2.0) {
             return Err(Error::invalid(
                 "lambda",
                 format!(
-                    "relaxation must be positive and finite (got {})",
+                    "relaxation must lie in (0, 2), where the iteration converges (got {})",
                     self.lambda
                 ),
             ));

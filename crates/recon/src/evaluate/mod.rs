@@ -189,8 +189,7 @@ pub fn rescore(dir: &Path, scene: &Scene, eval: &Evaluation) -> Result<Metrics> 
                 )
             })?;
         let file = dir.join(RunDir::volume_file(&ch.label));
-        let vol: Array3<f32> = ndarray_npy::read_npy(&file)
-            .map_err(|e| Error::field(&file, "data", format!("reading the volume failed: {e}")))?;
+        let vol: Array3<f32> = prism_domain::scene::npy::read_array(&file, "volume")?;
         prism_domain::error::ensure_shape("volume", vol.shape(), &shape, "the scene's grid")
             .map_err(|e| Error::from(e).in_file(&file))?;
         let scores = score(vol.view(), refs.index_axis(Axis(0), c), eval, roi.as_ref())

@@ -58,6 +58,41 @@ pub struct Protocol {
     pub roi: Option<RoiSpec>,
 }
 
+/// The evaluation grid's edge lengths accepted (the upper end: 4096³ voxels of two f32 volumes
+/// are already 0.5 TB).
+pub const GRID_RANGE: std::ops::RangeInclusive<usize> = 2..=4096;
+
+impl Protocol {
+    /// Refuse an evaluation grid outside [`GRID_RANGE`] (`field` names where it was given).
+    pub fn check_grid(grid: Option<usize>, field: &str) -> prism_domain::Result<()> {
+        match grid {
+            Some(n) if !GRID_RANGE.contains(&n) => Err(prism_domain::Error::invalid(
+                field,
+                format!(
+                    "expected an edge length in {}..={}, got {n}",
+                    GRID_RANGE.start(),
+                    GRID_RANGE.end()
+                ),
+            )),
+            _ => Ok(()),
+        }
+    }
+
+    /// Add what scoring holds at its peak to `f`: one channel's prediction and reference
+    /// resampled to the evaluation grid (or on the scene's own) with the SSIM maps.
+    pub fn add_footprint(&self, f: &mut prism_domain::memory::Footprint, native_voxels: usize) {
+        use crate::pipeline::footprint::VOXEL_BYTES;
+        let voxels = self.grid.map_or(native_voxels, |n| n.saturating_pow(3));
+        let on = self
+            .grid
+            .map_or("the native grid".to_string(), |n| format!("{n}³"));
+        f.add(
+            format!("scoring one channel on {on} (both volumes, SSIM maps)"),
+            prism_domain::memory::bytes(voxels, VOXEL_BYTES as usize),
+        );
+    }
+}
+
 /// The protocol and, when weights were given, the LPIPS network (shared: a suite's cells
 /// score with one network under their scenes' protocols).
 #[derive(Clone, Default)]
@@ -98,6 +133,22 @@ impl Evaluation {
         Roi::from_references(refs.view(), g.dy, g.dx, spec)
             .map(Some)
             .map_err(|e| Error::from(e).under("evaluation.roi"))
+    }
+
+    /// Try this evaluation on `scene` before anything is reconstructed: its mask is made and
+    /// every reference scored against itself, so an evaluation that cannot run (a grid smaller
+    /// than the SSIM window, a reference with no positive value, a mask that cannot be made)
+    /// fails at once instead of after the reconstruction, which it would lose.
+    pub fn check(&self, scene: &Scene) -> Result<()> {
+        let roi = self.roi(scene)?;
+        if let Some(refs) = &scene.references {
+            for (c, ch) in scene.channels.iter().enumerate() {
+                let r = refs.index_axis(ndarray::Axis(0), c);
+                score(r, r, self, roi.as_ref())
+                    .map_err(|e| e.under(&format!("evaluation of channel `{}`", ch.label)))?;
+            }
+        }
+        Ok(())
     }
 
     /// The record of this evaluation for volumes of `shape` (`[z, y, x]`), with projection

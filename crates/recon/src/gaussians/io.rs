@@ -52,6 +52,10 @@ pub struct ModelInfo {
     /// an energy (false in files written before the field existed).
     #[serde(default)]
     pub monoenergetic: bool,
+    /// The run carries a basis head: its materials are in `basis.safetensors` beside the model,
+    /// which monoenergetic queries need (false in files written before the field existed).
+    #[serde(default)]
+    pub basis: bool,
 }
 
 impl ModelInfo {
@@ -81,6 +85,7 @@ impl ModelInfo {
                     prism_domain::scene::SpectralCoordinate::Energy { .. }
                 )
             }),
+            basis: false,
         }
     }
 
@@ -144,6 +149,9 @@ pub fn load_model(path: &Path, device: &Device) -> Result<LoadedModel> {
     let f = TensorFile::open(path, FORMAT)?;
     let num = |k: &str| -> Result<f64> { f.json(k) };
     let info: ModelInfo = f.json("info")?;
+    info.geometry
+        .validate()
+        .map_err(|e| e.in_file(path).under("metadata.info.geometry"))?;
     let tensor = |name: &str, cols: usize| f.rows(name, cols);
     let m = info.channels.len();
     let host = HostGaussians {

@@ -169,6 +169,28 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 bytes(k, 12 * 11 * finished),
             );
         }
+        if let MethodConfig::FourDsg(c) = config {
+            // Upper bounds (both scale as the network does; exact at the default size is not
+            // needed, a width that cannot fit must not pass): 16·width² parameters per block
+            // (projections and the SSM's matrices) with gradients and two Adam moments, and
+            // per evaluated node and channel 8 width-sized activations per block.
+            let m = &c.spectral.stage2.curve_model;
+            let depth = m.depth.max(1);
+            let params = m.width.saturating_mul(m.width).saturating_mul(16 * depth);
+            let nodes = if m.table_size == 0 { k } else { m.table_size };
+            let acts = nodes
+                .saturating_mul(channels)
+                .saturating_mul(m.width)
+                .saturating_mul(8 * depth);
+            f.add(
+                format!(
+                    "the curve model (width {}, depth {depth}): parameters with gradients and \
+                     Adam moments, activations at {nodes} nodes × {channels} channels",
+                    m.width
+                ),
+                bytes(params, 16).saturating_add(bytes(acts, 4)),
+            );
+        }
         f.add(
             format!("an iteration's images ({columns} × {rows}×{cols})"),
             bytes(view_pixels, (PIXEL_BYTES * columns as u64) as usize),

@@ -291,6 +291,7 @@ fn initial_scales_are_the_lattice_spacing_and_models_round_trip() {
             cutoff: 2.5,
         },
         monoenergetic: true,
+        basis: false,
     };
     save_model(&path, &model, None, &world, &info).unwrap();
     // Same model, same bytes (safetensors alone writes its metadata in hash-map order).

@@ -2,7 +2,7 @@
 //! method ([`crate::methods`]) into a [`RunDir`], scores the volumes ([`crate::evaluate`]) and
 //! publishes the directory as a whole. [`footprint`] estimates a run's peak memory.
 
-mod footprint;
+pub(crate) mod footprint;
 mod gaussian;
 
 pub use footprint::footprint;
@@ -25,8 +25,8 @@ pub fn run(
     options: &RunOptions,
 ) -> Result<Outcome> {
     options.check(config)?;
-    // A region of interest that cannot be made fails now, not after the reconstruction.
-    options.evaluation.roi(scene)?;
+    // An evaluation that cannot run fails now, not after the reconstruction.
+    options.evaluation.check(scene)?;
     dir.write_text(RunDir::CONFIG, &config.resolved_yaml()?)?;
     let metrics = match config {
         MethodConfig::Classic(c) => classic::run::run(c, scene, &mut dir, options)?,

@@ -12,6 +12,7 @@ use crate::setup::{Checkpointing, RunOptions};
 use crate::{Error, MethodConfig, Result};
 use prism_domain::observe::Observer;
 use prism_domain::scene::Scene;
+use prism_domain::testing::edit_metadata;
 use std::path::Path;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -306,4 +307,82 @@ fn an_interrupted_naf_run_resumes_exactly() {
     }
     assert!(compared >= 2);
     assert!(!ckpt.exists());
+}
+
+type Edit = fn(&mut serde_json::Value);
+
+/// Resuming `config` into `out` from each edit of checkpoint `ckpt`'s `current` metadata is
+/// refused, naming the edited copy and `metadata.current.<field>`; nothing is published.
+fn refused_edits(
+    config: &MethodConfig,
+    scene: &Scene,
+    out: &Path,
+    ckpt: &Path,
+    cases: &[(&str, Edit)],
+) {
+    for (field, edit) in cases {
+        let bad = ckpt.with_file_name("bad.ckpt");
+        edit_metadata(ckpt, &bad, "current", edit);
+        let e = run_method_stopped(config, scene, out, &bad, true, ("", 0))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("bad.ckpt") && e.contains(&format!("metadata.current.{field}")),
+            "{field}: {e}"
+        );
+        assert!(!out.exists(), "{field}: nothing published");
+    }
+}
+
+/// Resume fields out of range are refused, naming the file and the field, before anything is
+/// trained or published: an iteration counter beyond the run's end (which used to publish the
+/// channel as finished early), a random-stream position beyond the stream, negative or
+/// non-finite running sums, a view order that is not one (R²-Gaussian and NAF).
+#[test]
+fn resume_fields_out_of_range_are_refused() {
+    let scene = scene();
+    let mut cfg = tiny_r2gs();
+    cfg.geometry.checkpoint_every = 10;
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("run");
+    let ckpt = tmp.path().join("run.ckpt");
+    let e = run_stopped(&cfg, &scene, &out, &ckpt, false, ("r2gs 40keV", 15));
+    interrupted(e.unwrap_err(), &ckpt, "r2gs 40keV", 15);
+    let cases: [(&str, Edit); 5] = [
+        ("progress.iteration", |v| {
+            v["progress"]["iteration"] = 1_000_000.into()
+        }),
+        ("trainer.rng_word_pos", |v| {
+            v["trainer"]["rng_word_pos"] = "340282366920938463463374607431768211455".into()
+        }),
+        ("progress.timing.render", |v| {
+            v["progress"]["timing"]["render"] = (-1.0).into()
+        }),
+        ("progress.window_n", |v| {
+            v["progress"]["window_n"] = 99.into()
+        }),
+        ("progress.last.total", |v| {
+            v["progress"]["last"]["total"] = (-0.5).into()
+        }),
+    ];
+    let config: MethodConfig = cfg.clone().into();
+    refused_edits(&config, &scene, &out, &ckpt, &cases);
+
+    let yaml = "method: naf\niterations: 30\nrays_per_batch: 64\nsamples_per_ray: 12\n\
+                eval_every: 10\ncheckpoint_every: 7\n\
+                field: {width: 8, hash_grid: {levels: 3, base_resolution: 4, growth: 2.0, \
+                log2_table_size: 8}}\n";
+    let config = MethodConfig::from_yaml(yaml, Path::new("naf.yaml")).unwrap();
+    let first = format!("naf {}", scene.channels[0].label);
+    let naf_ckpt = tmp.path().join("naf.ckpt");
+    let e = run_method_stopped(&config, &scene, &out, &naf_ckpt, false, (&first, 9));
+    interrupted(e.unwrap_err(), &naf_ckpt, &first, 9);
+    let cases: [(&str, Edit); 4] = [
+        ("iteration", |v| v["iteration"] = 31.into()),
+        ("order", |v| v["order"] = serde_json::json!([0])),
+        ("loss_sum", |v| v["loss_sum"] = (-1.0).into()),
+        ("rng_word_pos", |v| v["rng_word_pos"] = "x".into()),
+    ];
+    refused_edits(&config, &scene, &out, &naf_ckpt, &cases);
+    run_method_stopped(&config, &scene, &out, &naf_ckpt, true, ("", 0)).unwrap();
 }

@@ -407,6 +407,7 @@ fn config_parsing_names_bad_fields() {
         ("method: sart\niterations: 0\n", "iterations"),
         ("method: cgls\niterations: 0\n", "iterations"),
         ("method: sart\nlambda: 0\n", "lambda"),
+        ("method: sart\nlambda: 2.5\n", "(0, 2)"),
         ("method: sart\nlambda: -0.5\n", "lambda"),
         ("method: sart\nblock_size: 0\n", "block_size"),
         ("method: art\n", "method"),

@@ -14,6 +14,55 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
+/// The ChaCha8 word position saved as decimal text in `file`'s `field`: an integer within the
+/// stream (2⁶⁴ blocks of 16 words, so below 2⁶⁸).
+pub fn word_position(text: &str, file: &Path, field: &str) -> Result<u128> {
+    let pos: u128 = text
+        .parse()
+        .map_err(|_| Error::field(file, field, format!("not an integer: `{text}`")))?;
+    if pos >= 1 << 68 {
+        return Err(Error::field(
+            file,
+            field,
+            format!("{pos} lies beyond the random stream's 2^68 words"),
+        ));
+    }
+    Ok(pos)
+}
+
+/// Refuse a saved running value that is not finite and ≥ 0 (times, loss sums), naming `field`
+/// of `file`.
+pub fn check_sum(value: f64, file: &Path, field: &str) -> Result<()> {
+    if value.is_finite() && value >= 0.0 {
+        return Ok(());
+    }
+    Err(Error::field(
+        file,
+        field,
+        format!("{value} is not a finite value ≥ 0"),
+    ))
+}
+
+/// Refuse a saved iteration counter beyond the `iterations` of the run resuming from it.
+pub fn check_iteration(
+    iteration: usize,
+    iterations: usize,
+    file: &Path,
+    field: &str,
+) -> Result<()> {
+    if iteration <= iterations {
+        return Ok(());
+    }
+    Err(Error::field(
+        file,
+        field,
+        format!(
+            "iteration {iteration} lies beyond this run's {iterations} iterations: resume with \
+             the settings of the interrupted run"
+        ),
+    ))
+}
+
 /// A network and its optimiser, as Burn's records (exact): a curve model, or NAF's field.
 #[derive(Clone, Debug, PartialEq)]
 pub struct NetState {
@@ -59,6 +108,15 @@ impl NetState {
             .clone()
             .try_load_record(record)
             .map_err(|e| bad("net", e))?;
+        let mut audit = FiniteAudit::default();
+        net.visit(&mut audit);
+        if let Some(shape) = audit.non_finite {
+            return Err(Error::field(
+                file,
+                format!("{prefix}net"),
+                format!("a parameter tensor {shape:?} holds a value that is not finite"),
+            ));
+        }
         let saved = std::mem::replace(optim, AdamConfig::new().init());
         *optim = saved
             .from_bytes(Bytes::from_bytes_vec(self.optim.clone()))
@@ -78,6 +136,29 @@ impl NetState {
             net: f.bytes(&format!("{prefix}net"))?,
             optim: f.bytes(&format!("{prefix}optim"))?,
         })
+    }
+}
+
+/// Finds the first float parameter holding a NaN or an infinity.
+#[derive(Default)]
+struct FiniteAudit {
+    non_finite: Option<Vec<usize>>,
+}
+
+impl burn::module::ModuleVisitor for FiniteAudit {
+    fn visit_float<const D: usize>(
+        &mut self,
+        param: &burn::module::Param<burn::tensor::Tensor<D>>,
+    ) {
+        if self.non_finite.is_some() {
+            return;
+        }
+        let t = param.val();
+        let dims = t.dims().to_vec();
+        let finite = t.into_data().iter::<f32>().all(f32::is_finite);
+        if !finite {
+            self.non_finite = Some(dims);
+        }
     }
 }
 

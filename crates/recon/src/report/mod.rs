@@ -66,6 +66,40 @@ impl RunScores {
     }
 }
 
+/// Each run's column name: its method, with its directory's name when two runs share a method
+/// (two FDK runs with different settings), with the directory's path when those collide too.
+/// Characters that would break a Markdown row (control characters, `|`) are escaped.
+pub fn column_names(runs: &[RunScores]) -> Vec<String> {
+    let count = |f: &dyn Fn(&RunScores) -> String, r: &RunScores| {
+        runs.iter().filter(|o| f(o) == f(r)).count()
+    };
+    let name = |r: &RunScores| {
+        r.dir.file_name().map_or_else(
+            || r.dir.display().to_string(),
+            |n| n.to_string_lossy().into(),
+        )
+    };
+    runs.iter()
+        .map(|r| {
+            let label = if count(&|o| o.method.clone(), r) == 1 {
+                r.method.clone()
+            } else if count(&|o| format!("{} {}", o.method, name(o)), r) == 1 {
+                format!("{} ({})", r.method, name(r))
+            } else {
+                format!("{} ({})", r.method, r.dir.display())
+            };
+            label
+                .chars()
+                .flat_map(|c| match c {
+                    '|' => "\\|".chars().collect::<Vec<_>>(),
+                    c if c.is_control() => c.escape_default().collect(),
+                    c => vec![c],
+                })
+                .collect()
+        })
+        .collect()
+}
+
 /// Markdown table: rows are the channels of the first run (in its order, then any channel only
 /// later runs have), columns PSNR (dB) / SSIM per run; predicted (held-out) values are marked
 /// `*`. The last rows give the mean over fitted channels and the time.
@@ -79,8 +113,8 @@ pub fn table(runs: &[RunScores]) -> String {
         }
     }
     let mut s = String::from("| channel |");
-    for r in runs {
-        let _ = write!(s, " {} PSNR | {} SSIM |", r.method, r.method);
+    for name in column_names(runs) {
+        let _ = write!(s, " {name} PSNR | {name} SSIM |");
     }
     s.push_str("\n|---|");
     s.push_str(&"---|---|".repeat(runs.len()));
@@ -195,6 +229,38 @@ mod tests {
             ..run("fdk", &[])
         }]);
         assert!(t.contains("| 40keV | inf |"), "{t}");
+    }
+
+    #[test]
+    fn runs_of_one_method_are_told_apart_by_their_directories() {
+        let at = |method: &str, dir: &str| RunScores {
+            dir: PathBuf::from(dir),
+            ..run(method, &[("40keV", 30.0, false)])
+        };
+        let runs = [
+            at("fdk", "out/fdk-hann"),
+            at("fdk", "out/fdk-ram-lak"),
+            at("sart", "out/sart"),
+            at("tv", "a/tv"),
+            at("tv", "b/tv"),
+            at("cgls", "x/a|b\nc"),
+        ];
+        assert_eq!(
+            column_names(&runs),
+            [
+                "fdk (fdk-hann)",
+                "fdk (fdk-ram-lak)",
+                "sart",
+                "tv (a/tv)",
+                "tv (b/tv)",
+                "cgls"
+            ]
+        );
+        let t = table(&runs[..2]);
+        assert!(t.starts_with("| channel | fdk (fdk-hann) PSNR |"), "{t}");
+        let odd = [at("fdk", "a|b\nc"), at("fdk", "d")];
+        let names = column_names(&odd);
+        assert_eq!(names[0], "fdk (a\\|b\\nc)", "{names:?}");
     }
 
     #[test]

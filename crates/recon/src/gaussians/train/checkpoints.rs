@@ -105,6 +105,8 @@ pub struct Checkpoints<'a> {
     resume: Option<(Vec<Finished>, Option<Current>)>,
     /// (stage index, iteration) of the last file written.
     written: Option<(usize, usize)>,
+    /// The run continues the state read from the file.
+    resumed: bool,
 }
 
 impl<'a> Checkpoints<'a> {
@@ -115,6 +117,7 @@ impl<'a> Checkpoints<'a> {
             done: Vec::new(),
             resume: None,
             written: None,
+            resumed: false,
         }
     }
 
@@ -172,6 +175,7 @@ impl<'a> Checkpoints<'a> {
             }
         };
         self.resume = Some((done, current));
+        self.resumed = true;
         Ok(self)
     }
 
@@ -230,6 +234,7 @@ impl<'a> Checkpoints<'a> {
             ));
         };
         self.check_stage(c.index, &c.at, stage)?;
+        c.progress.check(stage.iterations, self.file.path())?;
         self.restore(&c.at, model, curve, "current.")?;
         self.resume = None;
         Ok(Some((c.trainer, c.progress, c.at.log)))
@@ -352,6 +357,10 @@ impl<'a> Checkpoints<'a> {
             Some((i, at)) => format!(
                 "; its parameters are not finite, the last good state (stage {i}, iteration \
                  {at}) is in `{path}`"
+            ),
+            None if self.resumed => format!(
+                "; its parameters are not finite; the run resumed from `{path}` (no state was \
+                 saved since)"
             ),
             None => "; its parameters are not finite and no earlier state was saved (set \
                      `checkpoint_every`)"

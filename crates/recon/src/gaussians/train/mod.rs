@@ -156,6 +156,59 @@ pub struct Progress {
     pub last_score: Option<(f64, f64)>,
 }
 
+impl Progress {
+    /// Refuse running sums that cannot come from a run of `iterations` iterations (saved in
+    /// `file`'s `metadata.current.progress`).
+    pub fn check(&self, iterations: usize, file: &std::path::Path) -> Result<()> {
+        use crate::record::resume::{check_iteration, check_sum};
+        let field = |f: &str| format!("metadata.current.progress.{f}");
+        check_iteration(self.iteration, iterations, file, &field("iteration"))?;
+        if self.window_n > self.iteration {
+            return Err(Error::field(
+                file,
+                field("window_n"),
+                format!(
+                    "{} iterations since the last record, {} done",
+                    self.window_n, self.iteration
+                ),
+            ));
+        }
+        let t = &self.timing;
+        let sums = [
+            ("start_train_s", self.start_train_s),
+            ("timing.render", t.render),
+            ("timing.loss", t.loss),
+            ("timing.backward", t.backward),
+            ("timing.optimiser", t.optimiser),
+            ("timing.densify", t.densify),
+        ];
+        for (name, v) in sums {
+            check_sum(v, file, &field(name))?;
+        }
+        for (group, l) in [("window", &self.window), ("last", &self.last)] {
+            for (name, v) in [
+                ("total", l.total),
+                ("l1", l.l1),
+                ("dssim", l.dssim),
+                ("tv", l.tv),
+                ("curve", l.curve),
+            ] {
+                check_sum(v, file, &field(&format!("{group}.{name}")))?;
+            }
+        }
+        if let Some((psnr, ssim)) = self.last_score
+            && (psnr.is_nan() || !(-1.0..=1.0).contains(&ssim))
+        {
+            return Err(Error::field(
+                file,
+                field("last_score"),
+                format!("({psnr}, {ssim}) is not a (PSNR, SSIM) pair"),
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// When what happens in a stage.
 struct Schedule<'a> {
     iterations: usize,

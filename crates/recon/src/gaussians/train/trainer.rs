@@ -200,10 +200,11 @@ impl<'a> Trainer<'a> {
         let bad = |field: &str, why: String| {
             Error::field(file, format!("metadata.current.trainer.{field}"), why)
         };
-        let pos: u128 = state
-            .rng_word_pos
-            .parse()
-            .map_err(|e| bad("rng_word_pos", format!("not a position: {e}")))?;
+        let pos = crate::record::resume::word_position(
+            &state.rng_word_pos,
+            file,
+            "metadata.current.trainer.rng_word_pos",
+        )?;
         let n = self.sup.views.len();
         let mut seen = vec![false; n];
         for &v in &state.order {
@@ -217,6 +218,16 @@ impl<'a> Trainer<'a> {
         let k = self.model.len();
         match (&mut self.stats, state.stats) {
             (Some(st), Some((sum, count))) if sum.len() == k && count.len() == k => {
+                if let Some(v) = sum
+                    .iter()
+                    .chain(&count)
+                    .find(|v| !(v.is_finite() && **v >= 0.0))
+                {
+                    return Err(bad(
+                        "stats",
+                        format!("densification statistic {v} is not a finite value ≥ 0"),
+                    ));
+                }
                 let device = self.model.device();
                 st.sum = crate::device::upload(sum, 1, &device).reshape([k]);
                 st.count = crate::device::upload(count, 1, &device).reshape([k]);

@@ -36,7 +36,12 @@ pub(crate) fn shared_geometry<'o>(
 ) -> Result<(Journal<'o>, SharedGeometry)> {
     let fingerprint = checkpoint::fingerprint(config, &setup.observed)?;
     if let Some(arg) = from_geometry {
-        let c = checkpoint::load(&checkpoint::locate(arg), &fingerprint, device)?;
+        let c = checkpoint::load(
+            &checkpoint::locate(arg),
+            &fingerprint,
+            &setup.observed,
+            device,
+        )?;
         let mut journal = Journal::new(RunLog::resume(&dir.file(RunDir::LOG), &c.log)?, observer);
         journal.checkpoints = checkpoints;
         journal.stages.push(c.stage);
@@ -72,12 +77,15 @@ pub(crate) fn spectral(
     let scene = &*setup.observed;
     let m = scene.n_channels();
     let s = train_spectral(config, scene, shared, device, journal)?;
-    let info = ModelInfo::new(
-        setup.full,
-        scene,
-        &(0..m).collect::<Vec<_>>(),
-        config.geometry.projection,
-    );
+    let info = ModelInfo {
+        basis: s.basis.is_some(),
+        ..ModelInfo::new(
+            setup.full,
+            scene,
+            &(0..m).collect::<Vec<_>>(),
+            config.geometry.projection,
+        )
+    };
     let raw_host = host_values(&s.raw);
     save_model(
         &dir.file(RunDir::MODEL),

@@ -103,6 +103,7 @@ pub fn fit_channel(
                 ),
             ));
         }
+        saved.state.check(config.iterations, nv, &file)?;
         saved.restore(&mut field, &mut optim, &file)?;
         let st = saved.state;
         rng = st.rng(rng_seed, &file)?;

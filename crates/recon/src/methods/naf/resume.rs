@@ -19,6 +19,7 @@
 
 use crate::gaussians::train::checkpoints::{NetState, ResumeFile};
 use crate::record::log::SavedLog;
+use crate::record::resume::{check_iteration, check_sum, word_position};
 use crate::record::tensors::{Tensors, json_meta};
 use crate::{Error, Result};
 use burn::optim::ModuleOptimizer;
@@ -50,15 +51,45 @@ pub struct LoopState {
 }
 
 impl LoopState {
+    /// Refuse a loop that a run of `iterations` iterations over `views` views cannot have
+    /// saved (`file` names it in errors).
+    pub fn check(&self, iterations: usize, views: usize, file: &Path) -> Result<()> {
+        let field = |f: &str| format!("metadata.current.{f}");
+        check_iteration(self.iteration, iterations, file, &field("iteration"))?;
+        // Within an epoch the order is the epoch's permutation of the views (refilled at the
+        // epoch's first iteration, so any saved order is then unused).
+        if !self.iteration.is_multiple_of(views) {
+            let mut seen = vec![false; views];
+            let ok = self.order.len() == views
+                && self
+                    .order
+                    .iter()
+                    .all(|&v| v < views && !std::mem::replace(&mut seen[v], true));
+            if !ok {
+                return Err(Error::field(
+                    file,
+                    field("order"),
+                    format!("not an order of the {views} training views"),
+                ));
+            }
+        }
+        check_sum(self.loss_sum, file, &field("loss_sum"))?;
+        if self.loss_n > self.iteration {
+            return Err(Error::field(
+                file,
+                field("loss_n"),
+                format!(
+                    "{} losses summed, {} iterations done",
+                    self.loss_n, self.iteration
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     /// The sampler positioned where this state left it (seeded with `seed`).
     pub fn rng(&self, seed: u64, file: &Path) -> Result<ChaCha8Rng> {
-        let pos: u128 = self.rng_word_pos.parse().map_err(|_| {
-            Error::field(
-                file,
-                "metadata.current.rng_word_pos",
-                format!("not an integer: `{}`", self.rng_word_pos),
-            )
-        })?;
+        let pos = word_position(&self.rng_word_pos, file, "metadata.current.rng_word_pos")?;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         rng.set_word_pos(pos);
         Ok(rng)
@@ -105,6 +136,8 @@ pub struct NafCheckpoints<'a> {
     file: ResumeFile<'a>,
     /// (channel, iteration) of the last file written.
     written: Option<(usize, usize)>,
+    /// The run continues the state read from the file.
+    resumed: bool,
 }
 
 impl<'a> NafCheckpoints<'a> {
@@ -113,6 +146,7 @@ impl<'a> NafCheckpoints<'a> {
         NafCheckpoints {
             file,
             written: None,
+            resumed: false,
         }
     }
 
@@ -122,7 +156,8 @@ impl<'a> NafCheckpoints<'a> {
     }
 
     /// The state saved in the file, for a run of `channels` channels on a `[nz, ny, nx]` grid.
-    pub fn read(&self, channels: usize, shape: [usize; 3]) -> Result<Saved> {
+    pub fn read(&mut self, channels: usize, shape: [usize; 3]) -> Result<Saved> {
+        self.resumed = true;
         let f = self.file.open(FORMAT)?;
         let path = f.path();
         let done: usize = f.json("done")?;
@@ -207,6 +242,10 @@ impl<'a> NafCheckpoints<'a> {
         match self.written {
             Some((c, it)) => format!(
                 "; the last saved state (channel {c}, iteration {it}) is in `{}`",
+                self.file.path().display()
+            ),
+            None if self.resumed => format!(
+                "; the run resumed from `{}` (no state was saved since)",
                 self.file.path().display()
             ),
             None => "; no earlier state was saved (set `checkpoint_every`)".into(),

@@ -27,7 +27,7 @@ pub(crate) fn run(
     let mut checkpoints = match &options.checkpoint {
         Some(c) => {
             let fingerprint = Fingerprint::new(config, scene, &[], &[])?;
-            let ck = NafCheckpoints::new(c.file(config.checkpoint_every, fingerprint));
+            let mut ck = NafCheckpoints::new(c.file(config.checkpoint_every, fingerprint));
             if c.resume {
                 let shape = scene.geometry.volume.shape_zyx();
                 let saved = ck.read(scene.channels.len(), shape)?;

@@ -68,13 +68,29 @@ pub struct BasisModel {
 impl BasisModel {
     /// The material model beside the spectral model file `model` (a run directory's
     /// `gaussians.safetensors`), or `None` when there is no [`BASIS_FILE`] beside it (a run
-    /// without the basis head, or no spectral run at all).
+    /// without the basis head, or no spectral run at all). A model trained with the basis head
+    /// whose file is gone is an error: without it a monoenergetic query would answer another
+    /// quantity (the curve's interpolation).
     pub fn open(model: &Path, device: &Device) -> Result<Option<BasisModel>> {
         let path = model.with_file_name(BASIS_FILE);
-        if !path.exists() {
+        if !model.exists() {
             return Ok(None);
         }
         let loaded = load_model(model, device)?;
+        if !path.exists() {
+            if loaded.info.basis {
+                return Err(Error::field(
+                    &path,
+                    ".",
+                    format!(
+                        "missing: {} was trained with a basis head, whose materials this file \
+                         holds; monoenergetic images need it",
+                        model.display()
+                    ),
+                ));
+            }
+            return Ok(None);
+        }
         let f = TensorFile::open(&path, FORMAT)?;
         let meta: BasisMeta = f.json("basis")?;
         let b = meta.materials.len();

@@ -86,9 +86,15 @@ pub fn locate(arg: &Path) -> PathBuf {
     }
 }
 
-/// Read a checkpoint for a run whose stage 1 would have had `wanted`; errors name the file and
-/// the field, and say what differs when the checkpoint belongs to another scene or settings.
-pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkpoint> {
+/// Read a checkpoint for a run of `scene` whose stage 1 would have had `wanted`; errors name the
+/// file and the field, and say what differs when the checkpoint belongs to another scene or
+/// settings. Its structural views must be distinct training views of `scene`.
+pub fn load(
+    path: &Path,
+    wanted: &Fingerprint,
+    scene: &Scene,
+    device: &Device,
+) -> Result<Checkpoint> {
     let f = TensorFile::open(path, FORMAT)?;
     let fingerprint: Fingerprint = f.json("fingerprint")?;
     if let Some(why) = fingerprint.mismatch(wanted) {
@@ -109,6 +115,7 @@ pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkp
     let world: World = f.json("world")?;
     let bounds: ScaleBounds = f.json("bounds")?;
     let views: Vec<usize> = f.json("views")?;
+    check_views(&views, scene).map_err(|why| Error::field(path, "metadata.views", why))?;
     let stage: StageReport = f.json("stage")?;
     let log: SavedLog = f.json("log")?;
     let meta = ModelMeta {
@@ -126,6 +133,27 @@ pub fn load(path: &Path, wanted: &Fingerprint, device: &Device) -> Result<Checkp
         stage,
         log,
     })
+}
+
+/// Why `views` cannot be the structural views of a stage 1 on `scene`, if they cannot.
+fn check_views(views: &[usize], scene: &Scene) -> std::result::Result<(), String> {
+    let train = scene.train_views();
+    if views.is_empty() {
+        return Err("no structural view".into());
+    }
+    let mut seen = std::collections::HashSet::new();
+    for &v in views {
+        if !train.contains(&v) {
+            return Err(format!(
+                "view {v} is not one of the scene's {} training views",
+                train.len()
+            ));
+        }
+        if !seen.insert(v) {
+            return Err(format!("view {v} is listed twice"));
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
