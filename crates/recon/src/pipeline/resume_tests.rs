@@ -386,3 +386,77 @@ fn resume_fields_out_of_range_are_refused() {
     refused_edits(&config, &scene, &out, &naf_ckpt, &cases);
     run_method_stopped(&config, &scene, &out, &naf_ckpt, true, ("", 0)).unwrap();
 }
+
+/// The network and optimiser records of a NAF checkpoint, overwritten 8 bytes at a time with
+/// extreme words at every position: restoring them gives the state or an error naming the
+/// file, never a panic (`fuzz_naf_resume` found Burn's reader asserting on some malformed
+/// optimiser records).
+#[test]
+fn malformed_network_records_are_refused_without_a_panic() {
+    use crate::record::resume::NetState;
+    use crate::record::tensors::TensorFile;
+    let scene = scene();
+    let yaml = "method: naf\niterations: 12\nrays_per_batch: 32\nsamples_per_ray: 8\n\
+                eval_every: 100\nfield: {width: 8, hash_grid: {levels: 2, base_resolution: 4, \
+                growth: 2.0, log2_table_size: 6}}\n";
+    let config = MethodConfig::from_yaml(yaml, Path::new("naf.yaml")).unwrap();
+    let MethodConfig::Naf(naf) = &config else {
+        unreachable!()
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let ckpt = tmp.path().join("naf.ckpt");
+    let first = format!("naf {}", scene.channels[0].label);
+    let e = run_method_stopped(
+        &config,
+        &scene,
+        &tmp.path().join("run"),
+        &ckpt,
+        false,
+        (&first, 3),
+    );
+    interrupted(e.unwrap_err(), &ckpt, &first, 3);
+    let f = TensorFile::open(&ckpt, "prism-naf-resume/1").unwrap();
+    let saved = NetState::read(&f, "current.").unwrap();
+    let device = cpu_device().autodiff();
+    let (mut panics, mut refused) = (Vec::new(), 0);
+    for (which, record) in [("net", &saved.net), ("optim", &saved.optim)] {
+        for at in 0..record.len().saturating_sub(8) {
+            for word in [u64::MAX, 0] {
+                let mut m = record.clone();
+                m[at..at + 8].copy_from_slice(&word.to_le_bytes());
+                let state = if which == "net" {
+                    NetState {
+                        net: m,
+                        optim: saved.optim.clone(),
+                    }
+                } else {
+                    NetState {
+                        net: saved.net.clone(),
+                        optim: m,
+                    }
+                };
+                let mut field = naf.field.init(0, &device).unwrap();
+                let mut optim = burn::optim::AdamConfig::new().init();
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    state.restore(&mut field, &mut optim, &ckpt, "current.")
+                }));
+                match r {
+                    Err(_) => panics.push(format!("{which} byte {at} = {word:#x}")),
+                    Ok(Err(e)) => {
+                        let e = e.to_string();
+                        assert!(e.contains("naf.ckpt") && e.contains(which), "{e}");
+                        refused += 1;
+                    }
+                    Ok(Ok(())) => {}
+                }
+            }
+        }
+    }
+    assert!(
+        panics.is_empty(),
+        "{} panics: {:?}",
+        panics.len(),
+        &panics[..panics.len().min(5)]
+    );
+    assert!(refused > 0, "no edit was refused");
+}

@@ -102,12 +102,15 @@ impl NetState {
                 format!("unreadable record: {e:?}"),
             )
         };
-        let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(self.net.clone()))
-            .map_err(|e| bad("net", e))?;
-        *net = net
-            .clone()
-            .try_load_record(record)
-            .map_err(|e| bad("net", e))?;
+        let field = |what: &str| format!("{prefix}{what}");
+        let loaded = without_panics(file, &field("net"), || {
+            let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(self.net.clone()))
+                .map_err(|e| bad("net", e))?;
+            net.clone()
+                .try_load_record(record)
+                .map_err(|e| bad("net", e))
+        })?;
+        *net = loaded;
         let mut audit = FiniteAudit::default();
         net.visit(&mut audit);
         if let Some(shape) = audit.non_finite {
@@ -118,9 +121,11 @@ impl NetState {
             ));
         }
         let saved = std::mem::replace(optim, AdamConfig::new().init());
-        *optim = saved
-            .from_bytes(Bytes::from_bytes_vec(self.optim.clone()))
-            .map_err(|e| bad("optim", e))?;
+        *optim = without_panics(file, &field("optim"), || {
+            saved
+                .from_bytes(Bytes::from_bytes_vec(self.optim.clone()))
+                .map_err(|e| bad("optim", e))
+        })?;
         Ok(())
     }
 
@@ -137,6 +142,28 @@ impl NetState {
             optim: f.bytes(&format!("{prefix}optim"))?,
         })
     }
+}
+
+/// `read`, with a panic inside it (Burn's record readers assert on some malformed records, e.g.
+/// an optimiser tensor without a parameter id) turned into an error naming `field` of `file`.
+/// The panic's default report is silenced meanwhile: the error says it.
+fn without_panics<T>(file: &Path, field: &str, read: impl FnOnce() -> Result<T>) -> Result<T> {
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(read));
+    std::panic::set_hook(hook);
+    out.unwrap_or_else(|panic| {
+        let why = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "malformed".into());
+        Err(Error::field(
+            file,
+            field,
+            format!("unreadable record: {why}"),
+        ))
+    })
 }
 
 /// Finds the first float parameter holding a NaN or an infinity.
