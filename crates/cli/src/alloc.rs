@@ -64,10 +64,7 @@ const LARGE: usize = 1 << 30;
 /// End the process cleanly when `size` bytes cannot be held (see the module docs).
 #[inline]
 fn check(size: usize) {
-    if size >= LARGE
-        && let Some(a) = prism_domain::memory::available()
-        && size as u64 > a
-    {
+    if size >= LARGE && prism_domain::memory::exceeds_available(size as u64).is_some() {
         refused(size);
     }
 }

@@ -73,16 +73,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             add(stem, Source::File(file), v)?;
         }
     }
+    // Every target is checked before anything is written.
     if !args.force {
         for stem in sources.keys() {
             for format in &args.formats {
-                let path = format.path(&args.out, stem);
-                if std::fs::symlink_metadata(&path).is_ok() {
-                    bail!(
-                        "{} exists; pass --force to replace it (nothing was written)",
-                        path.display()
-                    );
-                }
+                prism_domain::staged::refuse_existing(&format.path(&args.out, stem))?;
             }
         }
     }

@@ -14,6 +14,7 @@ pub mod error;
 pub mod export;
 pub mod geometry;
 pub mod import;
+pub mod indices;
 pub mod memory;
 pub mod metrics;
 pub mod observe;

@@ -76,8 +76,8 @@ impl Footprint {
     /// Refuse when the estimate exceeds the memory available (unless `allow`); `what` names the
     /// computation in the error.
     pub fn check(&self, what: &str, allow: bool) -> Result<()> {
-        match available() {
-            Some(a) if !allow && self.total() > a => Err(Error::invalid(
+        match exceeds_available(self.total()) {
+            Some(a) if !allow => Err(Error::invalid(
                 "memory",
                 format!(
                     "{what} needs about {} at its peak (estimate; `--dry-run` itemises it) but \
@@ -99,6 +99,12 @@ pub fn available() -> Option<u64> {
     let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb.saturating_mul(1024))
+}
+
+/// The memory available when `bytes` exceed it (`None` when they fit, or when it cannot be
+/// read): every check of a size against the machine goes through here.
+pub fn exceeds_available(bytes: u64) -> Option<u64> {
+    available().filter(|&a| bytes > a)
 }
 
 /// `12.3 MB`, `4.0 GB`, … (decimal units).

@@ -259,15 +259,24 @@ pub fn replace_file(path: &Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
-/// Write the new file `path` atomically ([`replace_file`]); an existing file is refused unless
-/// `force` (the command's `--force`), so a command never silently replaces a file it was not
-/// asked to.
-pub fn publish_file(path: &Path, bytes: &[u8], force: bool) -> Result<()> {
-    if !force && fs::symlink_metadata(path).is_ok() {
+/// Refuse an output `path` that exists (a file, a directory or a link, even a dangling one):
+/// what a command without `--force` must not replace.
+pub fn refuse_existing(path: &Path) -> Result<()> {
+    if fs::symlink_metadata(path).is_ok() {
         return Err(Error::invalid(
             "output",
             format!("`{}` exists; pass --force to replace it", path.display()),
         ));
+    }
+    Ok(())
+}
+
+/// Write the new file `path` atomically ([`replace_file`]); an existing file is refused unless
+/// `force` (the command's `--force`), so a command never silently replaces a file it was not
+/// asked to.
+pub fn publish_file(path: &Path, bytes: &[u8], force: bool) -> Result<()> {
+    if !force {
+        refuse_existing(path)?;
     }
     if path.is_dir() {
         return Err(Error::invalid(

@@ -82,13 +82,13 @@ impl std::str::FromStr for Override {
         let (key, value) = s
             .split_once('=')
             .ok_or_else(|| bad("expected key.path=value"))?;
-        let segments = key.trim().split('.').count();
-        if segments > MAX_KEY_DEPTH {
+        let key: Vec<String> = key.trim().split('.').map(str::to_string).collect();
+        if key.len() > MAX_KEY_DEPTH {
             return Err(bad(&format!(
-                "a key of {segments} segments; no config nests more than {MAX_KEY_DEPTH} deep"
+                "a key of {} segments; no config nests more than {MAX_KEY_DEPTH} deep",
+                key.len()
             )));
         }
-        let key: Vec<String> = key.trim().split('.').map(str::to_string).collect();
         if key.iter().any(|k| k.is_empty()) {
             return Err(bad("empty key segment"));
         }

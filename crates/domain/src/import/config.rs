@@ -347,8 +347,8 @@ impl ImportConfig {
 /// `--dry-run`); the full estimate, with the detector, follows in `import::footprint`.
 fn check_view_count(n: usize) -> Result<()> {
     let need = crate::memory::bytes(n, 12);
-    match crate::memory::available() {
-        Some(a) if need > a => Err(Error::invalid(
+    match crate::memory::exceeds_available(need) {
+        Some(a) => Err(Error::invalid(
             "angles.count",
             format!(
                 "{n} views need {} for their angles alone; {} is available",

@@ -174,8 +174,8 @@ fn read_tiff(path: &Path, image: Option<[usize; 2]>) -> Result<Array3<f32>> {
         }
         let page = crate::memory::bytes(dims.0 as usize * dims.1 as usize, 4);
         let held = crate::memory::bytes(pages.len(), 4);
-        if let Some(a) = crate::memory::available()
-            && held.saturating_add(page.saturating_mul(2)) > a
+        if let Some(a) =
+            crate::memory::exceeds_available(held.saturating_add(page.saturating_mul(2)))
         {
             return Err(bad(format!(
                 "page {n} ({}×{}) would take the pages read past the {} of memory available",

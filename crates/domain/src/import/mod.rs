@@ -23,6 +23,7 @@ pub use crate::scene::{AxisEstimate, AxisMethod};
 pub use axis::AxisConfig;
 pub use config::{ImportConfig, ReferenceKind};
 
+use crate::indices::IndexFault;
 use crate::memory::{self, Footprint};
 use crate::scene::{Channel, Provenance, Scene, Split, normalise_tau};
 use crate::{Error, Result};
@@ -79,20 +80,18 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
             Some(v) => v.clone(),
             None => (0..n_views).collect(),
         };
-        let mut seen = vec![false; n_views];
-        for (i, &v) in views.iter().enumerate() {
-            if v >= n_views {
-                return Err(Error::invalid(
-                    format!("channels[{c}].views[{i}]"),
-                    format!("view {v} is beyond the scan's {n_views} views"),
-                ));
-            }
-            if std::mem::replace(&mut seen[v], true) {
-                return Err(Error::invalid(
-                    format!("channels[{c}].views[{i}]"),
-                    format!("view {v} is listed twice (each image must be one view)"),
-                ));
-            }
+        if let Err(fault) = crate::indices::distinct_below(&views, n_views) {
+            let (i, why) = match fault {
+                IndexFault::Beyond { at, index, .. } => (
+                    at,
+                    format!("view {index} is beyond the scan's {n_views} views"),
+                ),
+                IndexFault::Repeated { at, index } => (
+                    at,
+                    format!("view {index} is listed twice (each image must be one view)"),
+                ),
+            };
+            return Err(Error::invalid(format!("channels[{c}].views[{i}]"), why));
         }
         let (stack, from) = match (&src.counts, &src.line_integrals) {
             (Some(s), None) => (read_stack(s, base, Some([rows, cols]))?, s),

@@ -152,15 +152,17 @@ fn check_npy_size(f: &mut fs::File) -> std::io::Result<()> {
     let data = shape.iter().try_fold(item, |a, &n| a.checked_mul(n));
     let held = file_len - prefix - header_len;
     match data {
-        Some(bytes) if bytes <= held => match crate::memory::available() {
-            // Read, then widened to f32 at most: twice the data in the worst case.
-            Some(a) if bytes.saturating_mul(2) > a => Err(bad(format!(
-                "its {} of data do not fit the {} of memory available",
-                crate::memory::human(bytes),
-                crate::memory::human(a)
-            ))),
-            _ => Ok(()),
-        },
+        // Read, then widened to f32 at most: twice the data in the worst case.
+        Some(bytes) if bytes <= held => {
+            match crate::memory::exceeds_available(bytes.saturating_mul(2)) {
+                Some(a) => Err(bad(format!(
+                    "its {} of data do not fit the {} of memory available",
+                    crate::memory::human(bytes),
+                    crate::memory::human(a)
+                ))),
+                _ => Ok(()),
+            }
+        }
         _ => Err(bad(format!(
             "its header declares shape {shape:?} of {descr} ({} bytes of data); the file holds {held} after its header",
             data.map_or("more than 2⁶⁴".to_string(), |b| b.to_string()),

@@ -138,13 +138,19 @@ impl Evaluation {
     /// Try this evaluation on `scene` before anything is reconstructed: its mask is made and
     /// every reference scored against itself, so an evaluation that cannot run (a grid smaller
     /// than the SSIM window, a reference with no positive value, a mask that cannot be made)
-    /// fails at once instead of after the reconstruction, which it would lose.
+    /// fails at once instead of after the reconstruction, which it would lose. LPIPS is left
+    /// out of the trial (its network runs on every slice and fails only on its weights, read
+    /// when the evaluation was made).
     pub fn check(&self, scene: &Scene) -> Result<()> {
         let roi = self.roi(scene)?;
+        let trial = Evaluation {
+            lpips: None,
+            ..self.clone()
+        };
         if let Some(refs) = &scene.references {
             for (c, ch) in scene.channels.iter().enumerate() {
                 let r = refs.index_axis(ndarray::Axis(0), c);
-                score(r, r, self, roi.as_ref())
+                score(r, r, &trial, roi.as_ref())
                     .map_err(|e| e.under(&format!("evaluation of channel `{}`", ch.label)))?;
             }
         }

@@ -206,15 +206,8 @@ impl<'a> Trainer<'a> {
             "metadata.current.trainer.rng_word_pos",
         )?;
         let n = self.sup.views.len();
-        let mut seen = vec![false; n];
-        for &v in &state.order {
-            if v >= n || std::mem::replace(&mut seen[v], true) {
-                return Err(bad(
-                    "order",
-                    format!("view {v} is not one of the {n} training views or repeats"),
-                ));
-            }
-        }
+        prism_domain::indices::distinct_below(&state.order, n)
+            .map_err(|fault| bad("order", format!("training view {fault}")))?;
         let k = self.model.len();
         match (&mut self.stats, state.stats) {
             (Some(st), Some((sum, count))) if sum.len() == k && count.len() == k => {

@@ -59,17 +59,18 @@ impl LoopState {
         // Within an epoch the order is the epoch's permutation of the views (refilled at the
         // epoch's first iteration, so any saved order is then unused).
         if !self.iteration.is_multiple_of(views) {
-            let mut seen = vec![false; views];
-            let ok = self.order.len() == views
-                && self
-                    .order
-                    .iter()
-                    .all(|&v| v < views && !std::mem::replace(&mut seen[v], true));
-            if !ok {
+            let why = if self.order.len() != views {
+                Some(format!("{} entries", self.order.len()))
+            } else {
+                prism_domain::indices::distinct_below(&self.order, views)
+                    .err()
+                    .map(|fault| format!("view {fault}"))
+            };
+            if let Some(why) = why {
                 return Err(Error::field(
                     file,
                     field("order"),
-                    format!("not an order of the {views} training views"),
+                    format!("not an order of the {views} training views: {why}"),
                 ));
             }
         }

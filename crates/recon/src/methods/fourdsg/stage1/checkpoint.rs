@@ -137,23 +137,19 @@ pub fn load(
 
 /// Why `views` cannot be the structural views of a stage 1 on `scene`, if they cannot.
 fn check_views(views: &[usize], scene: &Scene) -> std::result::Result<(), String> {
-    let train = scene.train_views();
     if views.is_empty() {
         return Err("no structural view".into());
     }
-    let mut seen = std::collections::HashSet::new();
-    for &v in views {
-        if !train.contains(&v) {
-            return Err(format!(
-                "view {v} is not one of the scene's {} training views",
-                train.len()
-            ));
-        }
-        if !seen.insert(v) {
-            return Err(format!("view {v} is listed twice"));
-        }
+    prism_domain::indices::distinct_below(views, scene.n_views())
+        .map_err(|fault| format!("view {fault}"))?;
+    let train = scene.train_views();
+    match views.iter().find(|v| !train.contains(v)) {
+        Some(v) => Err(format!(
+            "view {v} is not one of the scene's {} training views",
+            train.len()
+        )),
+        None => Ok(()),
     }
-    Ok(())
 }
 
 #[cfg(test)]
