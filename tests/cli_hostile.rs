@@ -17,43 +17,14 @@
 //! | | a basis run without `basis.safetensors` queried at an energy | `a_basis_run_missing_its_materials_refuses_an_energy_query` |
 //! | | a resume file beyond the run's end | `a_resume_file_beyond_the_runs_end_is_refused` (every field: `prism_recon`'s `resume_fields_out_of_range_are_refused`) |
 //! | | `report` columns by method only | `report_columns_tell_runs_of_one_method_apart` |
-//! | data loss | `--force` beside a `.NAME.old` that cannot be removed | `a_leftover_that_cannot_be_removed_keeps_the_users_files` |
-//! | | two `decompose` into one directory | `a_decompose_into_a_directory_being_written_is_refused` |
-//! | | `export` / `query -o` replacing files | `outputs_never_replace_a_file_without_force` |
 //! | | a scoring error after the reconstruction | `an_evaluation_that_cannot_run_fails_before_reconstructing` |
+//! | data loss | (`tests/cli_outputs.rs`) | |
 
 mod common;
 
-use common::{npy_with_header, path, prism, simulated};
+use common::{STAGE2, npy_with_header, path, prism, run_4dsg, simulated, with_fdk};
 use prism_domain::testing::edit_metadata;
 use std::path::{Path, PathBuf};
-
-/// A tiny 4D-SG run of a two-channel scene (`extra` appended to its config): (tempdir, scene,
-/// run directory).
-fn run_4dsg(extra: &str) -> (tempfile::TempDir, PathBuf, PathBuf) {
-    let (dir, scene) = simulated("hostile", 8, 12, 12, &[40, 70]);
-    let cfg = dir.path().join("4dsg.yaml");
-    std::fs::write(
-        &cfg,
-        format!("method: 4dsg\niterations: 30\ninit: {{ n_points: 200 }}\neval_every: 0\n{extra}"),
-    )
-    .unwrap();
-    let out = dir.path().join("run");
-    let (ok, t) = prism(&["recon", path(&cfg), "-s", path(&scene), "-o", path(&out)]);
-    assert!(ok, "{t}");
-    (dir, scene, out)
-}
-
-/// A simulated scene (8 views, 12³, at `kevs`) and an FDK config beside it: (tempdir, scene,
-/// config).
-fn with_fdk(name: &str, kevs: &[u32]) -> (tempfile::TempDir, PathBuf, PathBuf) {
-    let (dir, scene) = simulated(name, 8, 12, 12, kevs);
-    let fdk = dir.path().join("fdk.yaml");
-    std::fs::write(&fdk, "method: fdk\n").unwrap();
-    (dir, scene, fdk)
-}
-
-const STAGE2: &str = "stage2: { iterations: 10, curve_model: { width: 8, depth: 1 } }\n";
 
 #[test]
 fn a_model_with_a_huge_stored_geometry_is_refused() {
@@ -443,143 +414,6 @@ fn report_columns_tell_runs_of_one_method_apart() {
         ok && t.contains("fdk (fdk-hann) PSNR") && t.contains("fdk (fdk-ramp) PSNR"),
         "{t}"
     );
-}
-
-#[test]
-fn a_leftover_that_cannot_be_removed_keeps_the_users_files() {
-    let (dir, scene, fdk) = with_fdk("old", &[40]);
-    let out = dir.path().join("run");
-    let recon = || {
-        prism(&[
-            "recon",
-            path(&fdk),
-            "-s",
-            path(&scene),
-            "-o",
-            path(&out),
-            "--force",
-        ])
-    };
-    let (ok, t) = recon();
-    assert!(ok, "{t}");
-    std::fs::write(out.join("notes.txt"), "mine").unwrap();
-    // `.run.old` is a file: removing it as a directory fails (also for root).
-    std::fs::write(dir.path().join(".run.old"), "in the way").unwrap();
-    let (ok, t) = recon();
-    assert!(!ok && t.contains(".run.old"), "{t}");
-    assert_eq!(
-        std::fs::read_to_string(out.join("notes.txt")).unwrap(),
-        "mine"
-    );
-    assert!(out.join("metrics.json").is_file());
-    std::fs::remove_file(dir.path().join(".run.old")).unwrap();
-    let (ok, t) = recon();
-    assert!(ok, "{t}");
-    assert_eq!(
-        std::fs::read_to_string(out.join("notes.txt")).unwrap(),
-        "mine"
-    );
-}
-
-#[test]
-fn a_decompose_into_a_directory_being_written_is_refused() {
-    let (dir, scene, fdk) = with_fdk("dec", &[40, 70]);
-    let run = dir.path().join("run");
-    let (ok, t) = prism(&["recon", path(&fdk), "-s", path(&scene), "-o", path(&run)]);
-    assert!(ok, "{t}");
-    let out = dir.path().join("dec");
-    // Another live process (this test) is writing `dec`.
-    let staging = dir.path().join(".dec.partial");
-    std::fs::create_dir(&staging).unwrap();
-    std::fs::write(
-        staging.join(".prism-writer"),
-        std::process::id().to_string(),
-    )
-    .unwrap();
-    let decompose = || {
-        prism(&[
-            "decompose",
-            path(&run),
-            "-s",
-            path(&scene),
-            "-o",
-            path(&out),
-            "--basis",
-            "water,cortical_bone",
-            "--kev",
-            "60",
-        ])
-    };
-    let (ok, t) = decompose();
-    assert!(!ok && t.contains("another prism process"), "{t}");
-    assert!(!out.exists());
-    std::fs::remove_dir_all(&staging).unwrap();
-    let (ok, t) = decompose();
-    assert!(ok, "{t}");
-    let mut names: Vec<String> = std::fs::read_dir(&out)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().into_string().unwrap())
-        .collect();
-    names.sort();
-    assert!(names.contains(&"vmi-60keV.npy".to_string()), "{names:?}");
-    assert!(!dir.path().join(".dec.partial").exists());
-}
-
-#[test]
-fn outputs_never_replace_a_file_without_force() {
-    let (dir, scene, run) = run_4dsg(STAGE2);
-    // query -o onto the run's own volume: refused, the volume intact.
-    let own = run.join("40keV.npy");
-    let before = std::fs::read(&own).unwrap();
-    let (ok, t) = prism(&["query", path(&run), "--tau", "0.5", "-o", path(&own)]);
-    assert!(
-        !ok && t.contains("--force") && t.contains("40keV.npy"),
-        "{t}"
-    );
-    assert_eq!(std::fs::read(&own).unwrap(), before);
-    // export over a user's file: refused before anything is written.
-    let out = dir.path().join("exported");
-    std::fs::create_dir(&out).unwrap();
-    std::fs::write(out.join("40keV.mha"), "mine").unwrap();
-    let export = |force: bool| {
-        let mut args = vec![
-            "export",
-            path(&scene),
-            path(&run),
-            "-o",
-            path(&out),
-            "--format",
-            "nii",
-            "--format",
-            "mha",
-        ];
-        if force {
-            args.push("--force");
-        }
-        prism(&args)
-    };
-    let (ok, t) = export(false);
-    assert!(
-        !ok && t.contains("40keV.mha") && t.contains("--force"),
-        "{t}"
-    );
-    assert_eq!(
-        std::fs::read_to_string(out.join("40keV.mha")).unwrap(),
-        "mine"
-    );
-    assert!(!out.join("40keV.nii").exists(), "nothing written");
-    let (ok, t) = export(true);
-    assert!(ok, "{t}");
-    // Written with the user's umask, as a file this process creates.
-    use std::os::unix::fs::PermissionsExt;
-    let probe = dir.path().join("probe");
-    std::fs::write(&probe, "").unwrap();
-    let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
-    assert_eq!(mode(&out.join("40keV.nii")), mode(&probe));
-    let q = dir.path().join("q.npy");
-    let (ok, t) = prism(&["query", path(&run), "--tau", "0.5", "-o", path(&q)]);
-    assert!(ok, "{t}");
-    assert_eq!(mode(&q), mode(&probe));
 }
 
 #[test]

@@ -55,3 +55,33 @@ pub fn npy_with_header(path: &std::path::Path, descr: &str, shape: &str, data: &
     out.extend(data);
     std::fs::write(path, out).unwrap();
 }
+
+/// A tiny 4D-SG run of a two-channel scene (`extra` appended to its config): (tempdir, scene,
+/// run directory).
+pub fn run_4dsg(extra: &str) -> (tempfile::TempDir, std::path::PathBuf, std::path::PathBuf) {
+    let (dir, scene) = simulated("hostile", 8, 12, 12, &[40, 70]);
+    let cfg = dir.path().join("4dsg.yaml");
+    std::fs::write(
+        &cfg,
+        format!("method: 4dsg\niterations: 30\ninit: {{ n_points: 200 }}\neval_every: 0\n{extra}"),
+    )
+    .unwrap();
+    let out = dir.path().join("run");
+    let (ok, t) = prism(&["recon", path(&cfg), "-s", path(&scene), "-o", path(&out)]);
+    assert!(ok, "{t}");
+    (dir, scene, out)
+}
+
+/// A simulated scene (8 views, 12³, at `kevs`) and an FDK config beside it: (tempdir, scene,
+/// config).
+pub fn with_fdk(
+    name: &str,
+    kevs: &[u32],
+) -> (tempfile::TempDir, std::path::PathBuf, std::path::PathBuf) {
+    let (dir, scene) = simulated(name, 8, 12, 12, kevs);
+    let fdk = dir.path().join("fdk.yaml");
+    std::fs::write(&fdk, "method: fdk\n").unwrap();
+    (dir, scene, fdk)
+}
+
+pub const STAGE2: &str = "stage2: { iterations: 10, curve_model: { width: 8, depth: 1 } }\n";
