@@ -62,6 +62,10 @@ pub struct Protocol {
 /// are already 0.5 TB).
 pub const GRID_RANGE: std::ops::RangeInclusive<usize> = 2..=4096;
 
+/// Bytes per voxel of the evaluation (voxelised volume, 3-D SSIM's f64 moment maps) and of a
+/// classic method's working volumes.
+pub const VOXEL_BYTES: u64 = 64;
+
 impl Protocol {
     /// Refuse an evaluation grid outside [`GRID_RANGE`] (`field` names where it was given).
     pub fn check_grid(grid: Option<usize>, field: &str) -> prism_domain::Result<()> {
@@ -81,7 +85,6 @@ impl Protocol {
     /// Add what scoring holds at its peak to `f`: one channel's prediction and reference
     /// resampled to the evaluation grid (or on the scene's own) with the SSIM maps.
     pub fn add_footprint(&self, f: &mut prism_domain::memory::Footprint, native_voxels: usize) {
-        use crate::pipeline::footprint::VOXEL_BYTES;
         let voxels = self.grid.map_or(native_voxels, |n| n.saturating_pow(3));
         let on = self
             .grid

@@ -40,9 +40,7 @@ pub const RETAINED_PER_CHANNEL: f64 = 0.148;
 /// Bytes per detector pixel of one view at an iteration's peak (image, target, SSIM maps).
 pub const PIXEL_BYTES: u64 = 200;
 
-/// Bytes per voxel of the evaluation (voxelised volume, 3-D SSIM's f64 moment maps) and of a
-/// classic method's working volumes.
-pub const VOXEL_BYTES: u64 = 64;
+pub use crate::evaluate::protocol::VOXEL_BYTES;
 
 /// The estimated peak memory of running `config` on `scene` (Gaussian methods at their
 /// densification cap; `--set densify.max_gaussians=K` gives the estimate at K Gaussians).
