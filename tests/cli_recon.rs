@@ -494,6 +494,74 @@ fn bench_iteration_reports_allocations_against_the_traffic_bound() {
     assert!(!ok && t.contains("--window 10"), "{t}");
 }
 
+/// `prism bench scaling --quick` sweeps every axis from its base point, each (point, method)
+/// once in a process of its own: R²-Gaussian and NAF one timed stage per channel, 4D-SG two,
+/// the Gaussian count the point's (densification off), a peak RSS and an estimate for each;
+/// power laws for the swept series; log-log figures. A missing config folder is named.
+#[test]
+fn bench_scaling_sweeps_each_axis_and_fits_power_laws() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("scaling");
+    let configs = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_prism"))
+        .args([
+            "bench", "scaling", "--quick", "--warmup", "1", "--window", "2",
+        ])
+        .args(["--configs", configs, "-o", path(&out)])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("scaling.json")).unwrap()).unwrap();
+    let ms = v["measurements"].as_array().unwrap();
+    // 5 axes × 2 values, the base shared: 6 points × 3 methods, less NAF at K = 500.
+    assert_eq!(ms.len(), 17, "{v}");
+    assert!(v["failed"].as_array().unwrap().is_empty(), "{v}");
+    for m in ms {
+        let channels = m["point"]["channels"].as_u64().unwrap() as usize;
+        let stages = m["stages"].as_array().unwrap();
+        let expected = if m["method"] == "4dsg" { 2 } else { channels };
+        assert_eq!(stages.len(), expected, "{m}");
+        for s in stages {
+            assert!(s["iteration_s"].as_f64().unwrap() > 0.0, "{m}");
+            if m["method"] != "naf" {
+                assert_eq!(s["gaussians"], m["point"]["gaussians"], "{m}");
+            }
+        }
+        assert!(m["peak_rss_bytes"].as_f64().unwrap() > 1e6, "{m}");
+        assert!(m["estimate_bytes"].as_f64().unwrap() > 1e6, "{m}");
+    }
+    let fits = v["fits"].as_array().unwrap();
+    for (axis, series) in [
+        ("gaussians", "time r2gs"),
+        ("gaussians", "time 4dsg stage 2"),
+        ("channels", "time naf"),
+        ("grid", "peak 4dsg"),
+    ] {
+        assert!(
+            fits.iter()
+                .any(|f| f["axis"] == axis && f["series"] == series && f["exponent"].is_f64()),
+            "{axis} {series}: {v}"
+        );
+    }
+    for stem in ["scaling-time", "scaling-memory"] {
+        assert!(
+            std::fs::metadata(out.join(format!("{stem}.png")))
+                .unwrap()
+                .len()
+                > 1000
+        );
+        let svg = std::fs::read_to_string(out.join(format!("{stem}.svg"))).unwrap();
+        assert!(
+            svg.contains("against Gaussians") && svg.contains("r2gs"),
+            "{stem}"
+        );
+    }
+    let (ok, t) = prism(&["bench", "scaling", "--quick", "--configs", path(dir.path())]);
+    assert!(!ok && t.contains("phantom-4mono.yaml: not found"), "{t}");
+}
+
 /// Ctrl-C (SIGINT) during a Gaussian run: the current step finishes, the run's state is saved
 /// beside the output directory, nothing is published and the exit status is 130; the same
 /// command with `--resume` finishes the run and removes the checkpoint; `--resume` of a classic

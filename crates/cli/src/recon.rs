@@ -5,7 +5,7 @@ use crate::args::{EvalArgs, GaussianArgs, MemoryArgs, OutArgs, SetArgs};
 use crate::progress::Bars;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
-use prism_recon::pipeline::{footprint, run};
+use prism_recon::pipeline::{run, run_footprint};
 use prism_recon::record::RunDir;
 use std::path::PathBuf;
 
@@ -35,12 +35,7 @@ pub fn run_cmd(args: ReconArgs) -> anyhow::Result<()> {
     let scene = Scene::open(&args.scene)?;
     let what = format!("{} on {}", config.method().name(), args.scene.display());
     let evaluation = args.eval.evaluation()?;
-    let mut peak = footprint(&config, &scene);
-    if scene.references.is_some() {
-        evaluation
-            .protocol
-            .add_footprint(&mut peak, scene.geometry.volume.len());
-    }
+    let peak = run_footprint(&config, &scene, &evaluation);
     if !args.memory.proceed(&args.config, &what, &peak)? {
         return Ok(());
     }

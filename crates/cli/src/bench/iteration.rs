@@ -17,11 +17,10 @@
 //! 256 MiB, best of five, read + write bytes per second) turns the must-move bytes into the
 //! iteration's traffic-bound time.
 
-use crate::alloc::{Allocated, allocated};
+use super::probe::{Both, Probe};
 use crate::args::{EvalArgs, SetArgs};
 use crate::progress::Bars;
 use prism_domain::metrics::quantile;
-use prism_domain::observe::{Level, Observer};
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
 use prism_recon::gaussians::train::StageReport;
@@ -31,7 +30,6 @@ use prism_recon::setup::RunOptions;
 use rayon::prelude::*;
 use serde_json::json;
 use std::path::PathBuf;
-use std::sync::Mutex;
 use std::time::Instant;
 
 /// Parameters per Gaussian of a one-column model (mean, scale, rotation, density).
@@ -52,46 +50,6 @@ pub struct IterationArgs {
     eval: EvalArgs,
     #[command(flatten)]
     set: SetArgs,
-}
-
-/// The clock and the allocator's counters after one iteration.
-type Sample = (Instant, Allocated);
-
-/// Samples after each iteration of each stage (named by its phase).
-#[derive(Default)]
-struct Probe {
-    stages: Mutex<Vec<(String, Vec<Sample>)>>,
-}
-
-impl Observer for Probe {
-    fn phase(&self, name: &str, _total: u64) {
-        let mut s = self.stages.lock().unwrap_or_else(|e| e.into_inner());
-        s.push((name.to_string(), Vec::new()));
-    }
-    fn progress(&self, _done: u64, _status: &str) {
-        let sample = (Instant::now(), allocated());
-        let mut s = self.stages.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(last) = s.last_mut() {
-            last.1.push(sample);
-        }
-    }
-}
-
-/// Forwards to the progress bars and records into the probe.
-struct Both<'a>(&'a Bars, &'a Probe);
-
-impl Observer for Both<'_> {
-    fn phase(&self, name: &str, total: u64) {
-        self.0.phase(name, total);
-        self.1.phase(name, total);
-    }
-    fn progress(&self, done: u64, status: &str) {
-        self.1.progress(done, status);
-        self.0.progress(done, status);
-    }
-    fn note(&self, level: Level, text: &str) {
-        self.0.note(level, text);
-    }
 }
 
 /// Copy bandwidth in bytes per second (read + write), best of five parallel 256 MiB copies.
@@ -146,7 +104,7 @@ pub fn run_iteration(a: IterationArgs) -> anyhow::Result<serde_json::Value> {
     let tmp = tempfile::tempdir()?;
     let bars = Bars::new();
     let probe = Probe::default();
-    let observer = Both(&bars, &probe);
+    let observer = Both(Some(&bars), &probe);
     let options = RunOptions {
         device: config.device().device()?,
         from_geometry: None,
@@ -163,7 +121,7 @@ pub fn run_iteration(a: IterationArgs) -> anyhow::Result<serde_json::Value> {
     bars.finish();
     let train: serde_json::Value = RunDir::read_json(&outcome.dir.join(RunDir::TRAIN))?;
     let reports: Vec<StageReport> = serde_json::from_value(train["stages"].clone())?;
-    let stages = probe.stages.into_inner().unwrap_or_else(|e| e.into_inner());
+    let stages = probe.into_stages();
     let trained: Vec<_> = stages.iter().filter(|s| !s.1.is_empty()).collect();
     if trained.len() != reports.len() {
         anyhow::bail!(

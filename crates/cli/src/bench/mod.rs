@@ -3,10 +3,15 @@
 //! `classic`: the classic-CT benchmark (ours vs RTK in one run). RTK runs through `$PRISM_PYTHON`
 //! (default `python3`) when `itk-rtk` is importable and is skipped with a message otherwise.
 //! `iteration`: memory traffic of an R²-Gaussian training iteration ([`iteration`]).
+//! `scaling`: iteration time and peak memory against the scene's size ([`scaling`]).
 
 use crate::progress::Bars;
 #[cfg(not(target_env = "msvc"))]
 mod iteration;
+#[cfg(not(target_env = "msvc"))]
+mod probe;
+#[cfg(not(target_env = "msvc"))]
+mod scaling;
 
 use prism_recon::methods::classic::bench::{BenchOptions, ordering, run as run_classic};
 
@@ -23,6 +28,10 @@ enum Which {
     /// Bytes an R²-Gaussian iteration allocates and must move, against the copy bandwidth.
     #[cfg(not(target_env = "msvc"))]
     Iteration(iteration::IterationArgs),
+    /// Iteration time and peak memory of R²-Gaussian, 4D-SG and NAF against Gaussians, views,
+    /// detector, grid and channels, with fitted power laws and log-log figures.
+    #[cfg(not(target_env = "msvc"))]
+    Scaling(scaling::ScalingArgs),
 }
 
 #[derive(clap::Args)]
@@ -59,6 +68,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             println!("{}", serde_json::to_string_pretty(&value)?);
             return Ok(());
         }
+        #[cfg(not(target_env = "msvc"))]
+        Which::Scaling(a) => return scaling::run(a),
     };
     let bars = Bars::new();
     let value = if a.ordering_only {

@@ -23,7 +23,7 @@ use prism_recon::evaluate::{Evaluation, rescore};
 use prism_recon::methods::classic::import::{import_full, reference_configs, select_views};
 use prism_recon::methods::fourdsg::FourDsgMethod;
 use prism_recon::methods::fourdsg::ablation::ablate;
-use prism_recon::pipeline::{footprint, run};
+use prism_recon::pipeline::{run, run_footprint};
 use prism_recon::record::RunDir;
 use prism_recon::setup::RunOptions;
 use serde::{Deserialize, Serialize};
@@ -186,12 +186,7 @@ pub fn run_cell(plan: &Plan, out: &Path, i: usize, options: &ExecOptions) -> Res
         config.set_device(d);
     }
     let evaluation = cell_evaluation(plan, i, options).1;
-    let mut peak = footprint(&config, &scene);
-    if scene.references.is_some() {
-        evaluation
-            .protocol
-            .add_footprint(&mut peak, scene.geometry.volume.len());
-    }
+    let peak = run_footprint(&config, &scene, &evaluation);
     peak.check(&format!("run cell `{}`", cell.key), options.allow_memory)?;
     let record = cell_record(plan, i, options)?;
     let target = plan.run_dir(out, i);

@@ -48,6 +48,7 @@ pub struct Panel {
     pub x_label: String,
     pub y_label: String,
     pub log_x: bool,
+    pub log_y: bool,
     pub series: Vec<Series>,
     /// Category names for integer x positions (tick labels), when x is categorical.
     pub x_ticks: Option<Vec<(f64, String)>>,
@@ -184,51 +185,61 @@ fn draw_panel<DB: DrawingBackend>(p: &Panel, area: &DrawingArea<DB, Shift>) -> R
     let xs = p.series.iter().flat_map(|s| s.points.iter().map(|q| q.0));
     let ys = p.series.iter().flat_map(|s| s.points.iter().map(|q| q.1));
     let (x0, x1) = range(xs, p.log_x);
-    let (y0, y1) = range(ys, false);
+    let (y0, y1) = range(ys, p.log_y);
     let mut b = ChartBuilder::on(area);
     b.caption(&p.title, font(16))
         .margin(8)
         .x_label_area_size(40)
         .y_label_area_size(56);
-    if p.log_x {
-        let mut chart = b
-            .build_cartesian_2d((x0..x1).log_scale(), y0..y1)
-            .map_err(msg)?;
-        chart
-            .configure_mesh()
-            .x_desc(&p.x_label)
-            .y_desc(&p.y_label)
-            .label_style(font(12))
-            .axis_desc_style(font(13))
-            .light_line_style(RGBColor(238, 238, 238))
-            .x_label_formatter(&|v| format_tick(*v))
-            .draw()
-            .map_err(msg)?;
-        draw_series(&mut chart, p)
-    } else {
-        let mut chart = b.build_cartesian_2d(x0..x1, y0..y1).map_err(msg)?;
-        let ticks = p.x_ticks.clone();
-        let fmt = move |v: &f64| match &ticks {
-            Some(t) => t
-                .iter()
-                .find(|(x, _)| (x - v).abs() < 1e-6)
-                .map(|(_, l)| l.clone())
-                .unwrap_or_default(),
-            None => format_tick(*v),
-        };
-        let n_ticks = p.x_ticks.as_ref().map_or(8, |t| t.len().max(2));
-        chart
-            .configure_mesh()
-            .x_desc(&p.x_label)
-            .y_desc(&p.y_label)
-            .label_style(font(12))
-            .axis_desc_style(font(13))
-            .light_line_style(RGBColor(238, 238, 238))
-            .x_labels(n_ticks)
-            .x_label_formatter(&fmt)
-            .draw()
-            .map_err(msg)?;
-        draw_series(&mut chart, p)
+    let ticks = p.x_ticks.clone();
+    let x_fmt = move |v: &f64| match &ticks {
+        Some(t) => t
+            .iter()
+            .find(|(x, _)| (x - v).abs() < 1e-6)
+            .map(|(_, l)| l.clone())
+            .unwrap_or_default(),
+        None => format_tick(*v),
+    };
+    let n_ticks = p.x_ticks.as_ref().map_or(8, |t| t.len().max(2));
+    // A logarithmic axis labels 1, 2 and 5 of each decade (its mesh lines are denser).
+    let y_fmt = |v: &f64| {
+        let mantissa = *v / 10f64.powf(v.log10().floor());
+        let shown = [1.0, 2.0, 5.0, 10.0]
+            .iter()
+            .any(|m| (mantissa - m).abs() < 1e-6);
+        match (shown, *v) {
+            (false, _) => String::new(),
+            (true, v) if (0.01..1e4).contains(&v) => format_tick(v),
+            (true, v) => format!("{:.0}e{}", mantissa, v.log10().floor()),
+        }
+    };
+    // One arm per scale pair: plotters types linear and logarithmic axes apart. Ticks as
+    // before on linear axes; a logarithmic y axis gets short labels.
+    macro_rules! finish {
+        ($xr:expr, $yr:expr, $log_x:expr, $log_y:expr) => {{
+            let mut chart = b.build_cartesian_2d($xr, $yr).map_err(msg)?;
+            let mut mesh = chart.configure_mesh();
+            mesh.x_desc(&p.x_label)
+                .y_desc(&p.y_label)
+                .label_style(font(12))
+                .axis_desc_style(font(13))
+                .light_line_style(RGBColor(238, 238, 238))
+                .x_label_formatter(&x_fmt);
+            if !$log_x {
+                mesh.x_labels(n_ticks);
+            }
+            if $log_y {
+                mesh.y_label_formatter(&y_fmt);
+            }
+            mesh.draw().map_err(msg)?;
+            draw_series(&mut chart, p)
+        }};
+    }
+    match (p.log_x, p.log_y) {
+        (true, true) => finish!((x0..x1).log_scale(), (y0..y1).log_scale(), true, true),
+        (true, false) => finish!((x0..x1).log_scale(), y0..y1, true, false),
+        (false, true) => finish!(x0..x1, (y0..y1).log_scale(), false, true),
+        (false, false) => finish!(x0..x1, y0..y1, false, false),
     }
 }
 
@@ -382,6 +393,7 @@ mod tests {
                     x_label: "wall time (s)".into(),
                     y_label: "PSNR (dB)".into(),
                     log_x: true,
+                    log_y: false,
                     series: vec![
                         Series::line("R²-Gaussian", 3, vec![(10.0, 30.0), (100.0, 35.0)]),
                         Series::points("SART", 1, vec![(0.5, 31.0)]),
@@ -399,12 +411,28 @@ mod tests {
                     ..Panel::default()
                 },
                 Panel::default(),
+                Panel {
+                    title: "log-log".into(),
+                    x_label: "Gaussians".into(),
+                    log_x: true,
+                    log_y: true,
+                    series: vec![Series::points("NAF", 2, vec![(1e4, 0.02), (1e5, 0.3)])],
+                    ..Panel::default()
+                },
             ],
         };
         let [png, svg] = save(&dir.path().join("lines"), &lines).unwrap();
         assert!(std::fs::metadata(png).unwrap().len() > 1000);
         let svg = std::fs::read_to_string(svg).unwrap();
-        for needle in ["R²-Gaussian", "SART", "wall time (s)", "clean", "4D-SG"] {
+        for needle in [
+            "R²-Gaussian",
+            "SART",
+            "wall time (s)",
+            "clean",
+            "4D-SG",
+            "NAF",
+            "log-log",
+        ] {
             assert!(svg.contains(needle), "{needle}");
         }
         let bars = Bars {

@@ -161,6 +161,7 @@ fn noise_chart(ctx: &mut Context, i: usize, rows: &[&Row]) -> Result<String> {
             x_label: "noise level".into(),
             y_label: "mean PSNR (dB)".into(),
             log_x: false,
+            log_y: false,
             series,
             x_ticks: Some(ticks.clone()),
         });

@@ -164,6 +164,7 @@ pub(super) fn psnr_time(ctx: &mut Context, i: usize, views: usize, noise: &str) 
             x_label: "training time (s, log)".into(),
             y_label: "mean PSNR (dB)".into(),
             log_x: true,
+            log_y: false,
             series,
             x_ticks: None,
         });

@@ -7,8 +7,7 @@
 //!   `tv` holds every channel at once (primal, extrapolated and step volumes, the gradient duals,
 //!   and a data dual with its steps per training ray);
 //! * Gaussian methods: the Gaussians with their gradients and Adam moments, the iteration's
-//!   transient tensors (per Gaussian, per detector pixel, per TV-patch voxel) and the evaluation's
-//!   volume-sized buffers. The Gaussian count is not known before training: the estimate is given
+//!   transient tensors (per Gaussian, per detector pixel, per TV-patch voxel). The Gaussian count is not known before training: the estimate is given
 //!   at the densification cap (`densify.max_gaussians`, what a run may reach) and is the one
 //!   compared with the memory available;
 //! * NAF: the hash grid's tables with their Adam moments and one batch of samples.
@@ -41,6 +40,23 @@ pub const RETAINED_PER_CHANNEL: f64 = 0.148;
 pub const PIXEL_BYTES: u64 = 200;
 
 pub use crate::evaluate::protocol::VOXEL_BYTES;
+
+/// The estimated peak memory of a run as `prism recon` and a suite cell make it: [`footprint`]
+/// and, when the scene has references, scoring them under `evaluation` (the only volume-sized
+/// scoring buffers: [`footprint`] itself leaves them out, so they are counted once).
+pub fn run_footprint(
+    config: &MethodConfig,
+    scene: &Scene,
+    evaluation: &crate::evaluate::Evaluation,
+) -> Footprint {
+    let mut peak = footprint(config, scene);
+    if scene.references.is_some() {
+        evaluation
+            .protocol
+            .add_footprint(&mut peak, scene.geometry.volume.len());
+    }
+    peak
+}
 
 /// The estimated peak memory of running `config` on `scene` (Gaussian methods at their
 /// densification cap; `--set densify.max_gaussians=K` gives the estimate at K Gaussians).
@@ -116,10 +132,6 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                     8 * (c.field.width * c.field.layers + h.levels * h.features),
                 ),
             );
-            f.add(
-                "evaluation buffers (queried volume, 3-D SSIM)",
-                bytes(voxels, VOXEL_BYTES as usize),
-            );
         }
     }
     if let Some(c) = config.geometry() {
@@ -192,10 +204,6 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
         f.add(
             format!("an iteration's images ({columns} × {rows}×{cols})"),
             bytes(view_pixels, (PIXEL_BYTES * columns as u64) as usize),
-        );
-        f.add(
-            "evaluation buffers (voxelised volume, 3-D SSIM)",
-            bytes(voxels, VOXEL_BYTES as usize),
         );
     }
     f

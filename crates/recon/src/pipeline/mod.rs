@@ -5,7 +5,7 @@
 pub(crate) mod footprint;
 mod gaussian;
 
-pub use footprint::footprint;
+pub use footprint::{footprint, run_footprint};
 
 use gaussian::Gaussian;
 

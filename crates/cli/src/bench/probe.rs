@@ -1,0 +1,61 @@
+//! The clock and the allocator's counters after every training iteration, per stage: what the
+//! iteration benchmarks read their per-iteration costs from.
+
+use crate::alloc::{Allocated, allocated};
+use crate::progress::Bars;
+use prism_domain::observe::{Level, Observer};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// The clock and the allocator's counters after one iteration.
+pub type Sample = (Instant, Allocated);
+
+/// Samples after each iteration of each phase (named as the run names it).
+#[derive(Default)]
+pub struct Probe {
+    stages: Mutex<Vec<(String, Vec<Sample>)>>,
+}
+
+impl Probe {
+    /// The phases seen, each with its samples, in order.
+    pub fn into_stages(self) -> Vec<(String, Vec<Sample>)> {
+        self.stages.into_inner().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+impl Observer for Probe {
+    fn phase(&self, name: &str, _total: u64) {
+        let mut s = self.stages.lock().unwrap_or_else(|e| e.into_inner());
+        s.push((name.to_string(), Vec::new()));
+    }
+    fn progress(&self, _done: u64, _status: &str) {
+        let sample = (Instant::now(), allocated());
+        let mut s = self.stages.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(last) = s.last_mut() {
+            last.1.push(sample);
+        }
+    }
+}
+
+/// Forwards to the progress bars (when shown) and records into the probe.
+pub struct Both<'a>(pub Option<&'a Bars>, pub &'a Probe);
+
+impl Observer for Both<'_> {
+    fn phase(&self, name: &str, total: u64) {
+        if let Some(b) = self.0 {
+            b.phase(name, total);
+        }
+        self.1.phase(name, total);
+    }
+    fn progress(&self, done: u64, status: &str) {
+        self.1.progress(done, status);
+        if let Some(b) = self.0 {
+            b.progress(done, status);
+        }
+    }
+    fn note(&self, level: Level, text: &str) {
+        if let Some(b) = self.0 {
+            b.note(level, text);
+        }
+    }
+}
