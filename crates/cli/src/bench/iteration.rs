@@ -17,16 +17,12 @@
 //! 256 MiB, best of five, read + write bytes per second) turns the must-move bytes into the
 //! iteration's traffic-bound time.
 
-use super::probe::{Both, Probe};
+use super::probe::probed_run;
 use crate::args::{EvalArgs, SetArgs};
 use crate::progress::Bars;
 use prism_domain::metrics::quantile;
 use prism_domain::scene::Scene;
 use prism_recon::MethodConfig;
-use prism_recon::gaussians::train::StageReport;
-use prism_recon::pipeline::run;
-use prism_recon::record::RunDir;
-use prism_recon::setup::RunOptions;
 use rayon::prelude::*;
 use serde_json::json;
 use std::path::PathBuf;
@@ -101,27 +97,9 @@ pub fn run_iteration(a: IterationArgs) -> anyhow::Result<serde_json::Value> {
         .product::<u64>();
     let pixels = (det.rows * det.cols) as u64;
     let evaluation = a.eval.evaluation()?;
-    let tmp = tempfile::tempdir()?;
     let bars = Bars::new();
-    let probe = Probe::default();
-    let observer = Both(Some(&bars), &probe);
-    let options = RunOptions {
-        device: config.device().device()?,
-        from_geometry: None,
-        observer: &observer,
-        evaluation: &evaluation,
-        checkpoint: None,
-    };
-    let outcome = run(
-        &config,
-        &scene,
-        RunDir::create(&tmp.path().join("run"), false)?,
-        &options,
-    )?;
+    let (stages, reports) = probed_run(&config, &scene, &evaluation, Some(&bars), true)?;
     bars.finish();
-    let train: serde_json::Value = RunDir::read_json(&outcome.dir.join(RunDir::TRAIN))?;
-    let reports: Vec<StageReport> = serde_json::from_value(train["stages"].clone())?;
-    let stages = probe.into_stages();
     let trained: Vec<_> = stages.iter().filter(|s| !s.1.is_empty()).collect();
     if trained.len() != reports.len() {
         anyhow::bail!(

@@ -4,6 +4,12 @@
 use crate::alloc::{Allocated, allocated};
 use crate::progress::Bars;
 use prism_domain::observe::{Level, Observer};
+use prism_domain::scene::Scene;
+use prism_recon::MethodConfig;
+use prism_recon::evaluate::Evaluation;
+use prism_recon::gaussians::train::StageReport;
+use prism_recon::record::RunDir;
+use prism_recon::setup::RunOptions;
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -58,4 +64,35 @@ impl Observer for Both<'_> {
             b.note(level, text);
         }
     }
+}
+
+/// Run `config` on `scene` in a temporary directory with a probe (and the progress bars, when
+/// given): the phases with their samples, and, for a Gaussian method (`gaussian`), the stage
+/// reports of its `train.json`.
+pub fn probed_run(
+    config: &MethodConfig,
+    scene: &Scene,
+    evaluation: &Evaluation,
+    bars: Option<&Bars>,
+    gaussian: bool,
+) -> anyhow::Result<(Vec<(String, Vec<Sample>)>, Vec<StageReport>)> {
+    let tmp = tempfile::tempdir()?;
+    let probe = Probe::default();
+    let observer = Both(bars, &probe);
+    let options = RunOptions {
+        device: config.device().device()?,
+        from_geometry: None,
+        observer: &observer,
+        evaluation,
+        checkpoint: None,
+    };
+    let dir = RunDir::create(&tmp.path().join("run"), false)?;
+    let outcome = prism_recon::pipeline::run(config, scene, dir, &options)?;
+    let reports = if gaussian {
+        let train: serde_json::Value = RunDir::read_json(&outcome.dir.join(RunDir::TRAIN))?;
+        serde_json::from_value(train["stages"].clone())?
+    } else {
+        Vec::new()
+    };
+    Ok((probe.into_stages(), reports))
 }

@@ -3,7 +3,7 @@
 //! fixed Gaussian count (scored at the end, as any run), and report the median iteration time of every stage, the peak RSS and
 //! the memory estimate.
 
-use super::super::probe::{Both, Probe};
+use super::super::probe::probed_run;
 use prism_domain::metrics::quantile;
 use prism_domain::observe::Silent;
 use prism_domain::scene::Scene;
@@ -11,11 +11,7 @@ use prism_domain::simulate::{SimulateConfig, simulate};
 use prism_domain::yaml::Overrides;
 use prism_recon::MethodConfig;
 use prism_recon::evaluate::Evaluation;
-use prism_recon::gaussians::train::StageReport;
-use prism_recon::pipeline::run;
 use prism_recon::pipeline::run_footprint;
-use prism_recon::record::RunDir;
-use prism_recon::setup::RunOptions;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
@@ -169,32 +165,10 @@ pub fn measure(
         MethodConfig::load_with(&file, &Overrides::parse(method.overrides(&p, iterations))?)?;
     let evaluation = Evaluation::default();
     let estimate_bytes = run_footprint(&config, &scene, &evaluation).total();
-    let tmp = tempfile::tempdir()?;
-    let probe = Probe::default();
-    let observer = Both(None, &probe);
-    let options = RunOptions {
-        device: config.device().device()?,
-        from_geometry: None,
-        observer: &observer,
-        evaluation: &evaluation,
-        checkpoint: None,
-    };
     let t = Instant::now();
-    let outcome = run(
-        &config,
-        &scene,
-        RunDir::create(&tmp.path().join("run"), false)?,
-        &options,
-    )?;
+    let (stages, reports) = probed_run(&config, &scene, &evaluation, None, method.has_gaussians())?;
     let run_s = t.elapsed().as_secs_f64();
-    let reports: Vec<StageReport> = if method.has_gaussians() {
-        let train: serde_json::Value = RunDir::read_json(&outcome.dir.join(RunDir::TRAIN))?;
-        serde_json::from_value(train["stages"].clone())?
-    } else {
-        Vec::new()
-    };
-    let trained: Vec<_> = probe
-        .into_stages()
+    let trained: Vec<_> = stages
         .into_iter()
         .filter(|s| s.1.len() == iterations)
         .collect();
