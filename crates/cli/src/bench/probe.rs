@@ -16,15 +16,18 @@ use std::time::Instant;
 /// The clock and the allocator's counters after one iteration.
 pub type Sample = (Instant, Allocated);
 
+/// A phase's name and the samples after each of its iterations.
+pub type Phase = (String, Vec<Sample>);
+
 /// Samples after each iteration of each phase (named as the run names it).
 #[derive(Default)]
 pub struct Probe {
-    stages: Mutex<Vec<(String, Vec<Sample>)>>,
+    stages: Mutex<Vec<Phase>>,
 }
 
 impl Probe {
     /// The phases seen, each with its samples, in order.
-    pub fn into_stages(self) -> Vec<(String, Vec<Sample>)> {
+    pub fn into_stages(self) -> Vec<Phase> {
         self.stages.into_inner().unwrap_or_else(|e| e.into_inner())
     }
 }
@@ -75,7 +78,7 @@ pub fn probed_run(
     evaluation: &Evaluation,
     bars: Option<&Bars>,
     gaussian: bool,
-) -> anyhow::Result<(Vec<(String, Vec<Sample>)>, Vec<StageReport>)> {
+) -> anyhow::Result<(Vec<Phase>, Vec<StageReport>)> {
     let tmp = tempfile::tempdir()?;
     let probe = Probe::default();
     let observer = Both(bars, &probe);
