@@ -8,28 +8,55 @@
 use crate::grid::HashGrid;
 use rayon::prelude::*;
 
-/// Points per parallel task of the forward.
-const CHUNK: usize = 1024;
+/// Points per parallel task of the forward: level by level over a task's points, one level's
+/// rows (512 KiB at 2^16 rows of 2 features) stay in the core's cache while the task's points,
+/// neighbours along their rays, read them.
+const CHUNK: usize = 8192;
+
+/// Runs `$kernel::<F>` with the grid's feature count as a constant (1..=8, what
+/// [`crate::grid::HashGridConfig::validate`] admits), so a point's F sums stay in registers.
+macro_rules! by_features {
+    ($f:expr, $kernel:ident($($arg:expr),*)) => {
+        match $f {
+            1 => $kernel::<1>($($arg),*),
+            2 => $kernel::<2>($($arg),*),
+            3 => $kernel::<3>($($arg),*),
+            4 => $kernel::<4>($($arg),*),
+            5 => $kernel::<5>($($arg),*),
+            6 => $kernel::<6>($($arg),*),
+            7 => $kernel::<7>($($arg),*),
+            8 => $kernel::<8>($($arg),*),
+            f => panic!("hash grid with {f} features per level (1..=8 are valid)"),
+        }
+    };
+}
 
 /// The encodings `[N, L·F]` of `points` `[N, 3]` with `table` `[rows, F]`.
 pub fn encode(grid: &HashGrid, points: &[f32], table: &[f32]) -> Vec<f32> {
-    let (f, width) = (grid.features, grid.width());
+    by_features!(grid.features, encode_with(grid, points, table))
+}
+
+fn encode_with<const F: usize>(grid: &HashGrid, points: &[f32], table: &[f32]) -> Vec<f32> {
+    let width = grid.width();
     let n = points.len() / 3;
     let mut out = vec![0f32; n * width];
     out.par_chunks_mut(CHUNK * width)
         .enumerate()
         .for_each(|(chunk, out)| {
-            for (i, enc) in out.chunks_exact_mut(width).enumerate() {
-                let p = point(points, chunk * CHUNK + i);
-                for (l, level) in grid.levels.iter().enumerate() {
-                    let (rows, w) = level.corners(p);
-                    let acc = &mut enc[l * f..(l + 1) * f];
+            for (l, level) in grid.levels.iter().enumerate() {
+                for (i, enc) in out.chunks_exact_mut(width).enumerate() {
+                    let (rows, w) = level.corners(point(points, chunk * CHUNK + i));
+                    // Summed from 0 in corner order, as into the zeroed output.
+                    let mut acc = [0f32; F];
                     for (&r, &w) in rows.iter().zip(&w) {
-                        let row = &table[r as usize * f..(r as usize + 1) * f];
+                        let row: &[f32; F] = table[r as usize * F..(r as usize + 1) * F]
+                            .try_into()
+                            .expect("a row holds F features");
                         for (a, &t) in acc.iter_mut().zip(row) {
                             *a += w * t;
                         }
                     }
+                    enc[l * F..(l + 1) * F].copy_from_slice(&acc);
                 }
             }
         });
@@ -39,14 +66,18 @@ pub fn encode(grid: &HashGrid, points: &[f32], table: &[f32]) -> Vec<f32> {
 /// The table's gradient `[rows, F]` of `⟨grad, encode(points, ·)⟩` (`grad` `[N, L·F]`); the
 /// encoding is linear in the table, so this does not depend on the table's values.
 pub fn encode_backward(grid: &HashGrid, points: &[f32], grad: &[f32]) -> Vec<f32> {
-    let (f, width) = (grid.features, grid.width());
+    by_features!(grid.features, encode_backward_with(grid, points, grad))
+}
+
+fn encode_backward_with<const F: usize>(grid: &HashGrid, points: &[f32], grad: &[f32]) -> Vec<f32> {
+    let width = grid.width();
     let n = points.len() / 3;
-    let mut out = vec![0f32; grid.rows() * f];
+    let mut out = vec![0f32; grid.rows() * F];
     // Split the table into the levels' disjoint row ranges.
     let mut parts = Vec::with_capacity(grid.levels.len());
     let mut rest = out.as_mut_slice();
     for level in &grid.levels {
-        let (head, tail) = rest.split_at_mut(level.size as usize * f);
+        let (head, tail) = rest.split_at_mut(level.size as usize * F);
         parts.push((level, head));
         rest = tail;
     }
@@ -56,14 +87,16 @@ pub fn encode_backward(grid: &HashGrid, points: &[f32], grad: &[f32]) -> Vec<f32
         .for_each(|(l, (level, rows_out))| {
             let base = level.offset as usize;
             for i in 0..n {
-                let g = &grad[i * width + l * f..i * width + (l + 1) * f];
+                let g: &[f32; F] = grad[i * width + l * F..i * width + (l + 1) * F]
+                    .try_into()
+                    .expect("a level's slice holds F features");
                 if g.iter().all(|&g| g == 0.0) {
                     continue;
                 }
                 let (rows, w) = level.corners(point(points, i));
                 for (&r, &w) in rows.iter().zip(&w) {
                     let r = r as usize - base;
-                    for (o, &g) in rows_out[r * f..(r + 1) * f].iter_mut().zip(g) {
+                    for (o, &g) in rows_out[r * F..(r + 1) * F].iter_mut().zip(g) {
                         *o += w * g;
                     }
                 }

@@ -145,7 +145,10 @@ impl Level {
 
     /// The 8 corner rows (absolute) and trilinear weights of point `p` (unit cube), corner `c`
     /// taking `+1` on axis `a` when bit `a` of `c` is set.
-    #[inline]
+    ///
+    /// The per-axis cell, weights and index terms are computed once and combined per corner (a
+    /// weight is `(w_x · w_y) · w_z`, the product in axis order).
+    #[inline(always)]
     pub fn corners(&self, p: [f32; 3]) -> ([u32; 8], [f32; 8]) {
         let mut cell = [0u32; 3];
         let mut frac = [0f32; 3];
@@ -155,25 +158,47 @@ impl Level {
             } else {
                 0.0
             };
+            // pos ≥ 0.5, so truncation is its floor (and needs no call to libm's floorf).
             let pos = x * self.scale + 0.5;
-            let f = pos.floor();
             // The top vertex is res − 1: keep the cell's upper corner inside.
-            let c = (f as u32).min(self.res - 2);
+            let c = (pos as u32).min(self.res - 2);
             cell[a] = c;
             frac[a] = pos - c as f32;
         }
+        let w = [0, 1, 2].map(|a| [1.0 - frac[a], frac[a]]);
+        // Each axis's contribution to the row index, at the cell's lower and upper vertex.
+        let terms = if self.dense {
+            let (r, c) = (self.res, cell);
+            [
+                [c[0], c[0] + 1],
+                [r * c[1], r * (c[1] + 1)],
+                [r * r * c[2], r * r * (c[2] + 1)],
+            ]
+        } else {
+            let c = cell;
+            [
+                [c[0], c[0] + 1],
+                [
+                    c[1].wrapping_mul(PRIMES[0]),
+                    (c[1] + 1).wrapping_mul(PRIMES[0]),
+                ],
+                [
+                    c[2].wrapping_mul(PRIMES[1]),
+                    (c[2] + 1).wrapping_mul(PRIMES[1]),
+                ],
+            ]
+        };
         let mut rows = [0u32; 8];
         let mut weights = [0f32; 8];
         for c in 0..8 {
-            let mut w = 1.0f32;
-            let mut v = [0u32; 3];
-            for a in 0..3 {
-                let up = (c >> a) & 1 == 1;
-                v[a] = cell[a] + up as u32;
-                w *= if up { frac[a] } else { 1.0 - frac[a] };
-            }
-            rows[c] = self.offset + self.index(v[0], v[1], v[2]);
-            weights[c] = w;
+            let (x, y, z) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+            let index = if self.dense {
+                terms[0][x] + terms[1][y] + terms[2][z]
+            } else {
+                (terms[0][x] ^ terms[1][y] ^ terms[2][z]) & (self.size - 1)
+            };
+            rows[c] = self.offset + index;
+            weights[c] = w[0][x] * w[1][y] * w[2][z];
         }
         (rows, weights)
     }
