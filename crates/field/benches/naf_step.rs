@@ -44,7 +44,7 @@ fn main() {
         let t0 = Instant::now();
         let enc = field.encode(points.clone()).expect("shapes match");
         let t1 = Instant::now();
-        let mu = sigmoid(field.decode(enc)).reshape([n]);
+        let mu = sigmoid(field.decode(enc).expect("shapes match")).reshape([n]);
         let loss = (mu - target.clone()).powi_scalar(2).mean();
         let _ = loss.clone().into_scalar::<f32>();
         let t2 = Instant::now();

@@ -26,6 +26,34 @@ macro_rules! impl_cpu_field_ops {
                 });
                 Self::tensor(out, vec![grid.rows(), grid.features])
             }
+
+            fn field_mlp(
+                enc: FloatTensor<Self>,
+                params: FloatTensor<Self>,
+                layout: MlpLayout,
+            ) -> FloatTensor<Self> {
+                let n = Self::dims(&enc)[0];
+                let out = Self::with_values([&enc, &params], |[e, p]| {
+                    $crate::mlp::cpu_forward(&layout, e, p)
+                });
+                Self::tensor(out, vec![n, 1])
+            }
+
+            fn field_mlp_backward(
+                enc: FloatTensor<Self>,
+                params: FloatTensor<Self>,
+                layout: MlpLayout,
+                grad: FloatTensor<Self>,
+            ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+                let (n, p) = (Self::dims(&enc)[0], Self::dims(&params)[0]);
+                let (d_enc, d_params) = Self::with_values([&enc, &params, &grad], |[e, w, g]| {
+                    $crate::mlp::cpu_backward(&layout, e, w, g)
+                });
+                (
+                    Self::tensor(d_enc, vec![n, layout.input]),
+                    Self::tensor(d_params, vec![p]),
+                )
+            }
         }
     };
 }
@@ -33,6 +61,7 @@ macro_rules! impl_cpu_field_ops {
 #[cfg(feature = "flex")]
 mod flex {
     use crate::grid::HashGrid;
+    use crate::mlp::MlpLayout;
     use burn::backend::{Flex, tensor::FloatTensor};
     use prism_kernel::cpu::CpuFloat;
     impl_cpu_field_ops!(Flex);
@@ -43,6 +72,7 @@ mod flex {
 #[allow(deprecated)]
 mod ndarray {
     use crate::grid::HashGrid;
+    use crate::mlp::MlpLayout;
     use burn::backend::{NdArray, tensor::FloatTensor};
     use prism_kernel::cpu::CpuFloat;
     impl_cpu_field_ops!(NdArray);

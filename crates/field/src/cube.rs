@@ -17,6 +17,7 @@ use cubecl::prelude::*;
 use prism_kernel::cube::{linear, supports_f32_atomic_add, upload, zeros};
 
 use crate::grid::{HashGrid, PRIMES};
+use crate::mlp::{MlpLayout, by_ops};
 use crate::ops::FieldOps;
 
 /// Units per cube.
@@ -247,5 +248,22 @@ impl FieldOps for CubeBackend {
             grid.features,
         );
         out
+    }
+
+    fn field_mlp(
+        enc: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        layout: MlpLayout,
+    ) -> FloatTensor<Self> {
+        by_ops::forward::<Self>(&layout, enc, params)
+    }
+
+    fn field_mlp_backward(
+        enc: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        layout: MlpLayout,
+        grad: FloatTensor<Self>,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        by_ops::backward::<Self>(&layout, enc, params, grad)
     }
 }

@@ -5,7 +5,7 @@
 
 use burn::module::{Module, Param};
 use burn::nn::Linear;
-use burn::tensor::activation::{leaky_relu, sigmoid};
+use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor, TensorData};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -13,7 +13,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{FieldError, Result};
 use crate::grid::{HashGrid, HashGridConfig};
-use crate::ops::encode;
+use crate::mlp::MlpLayout;
+use crate::ops::{encode, mlp};
 
 /// LeakyReLU's negative slope.
 const SLOPE: f64 = 0.01;
@@ -138,7 +139,7 @@ impl NeuralField {
     pub fn forward(&self, points: Tensor<2>) -> Result<Tensor<1>> {
         let n = points.dims()[0];
         let enc = self.encode(points)?;
-        Ok(sigmoid(self.decode(enc)).reshape([n]))
+        Ok(sigmoid(self.decode(enc)?).reshape([n]))
     }
 
     /// The hash-grid encodings `[N, L·F]` of `points`.
@@ -152,20 +153,37 @@ impl NeuralField {
         encode(points, table, &self.grid)
     }
 
-    /// The MLP on encodings `[N, L·F]`: pre-sigmoid outputs `[N, 1]`.
-    pub fn decode(&self, enc: Tensor<2>) -> Tensor<2> {
-        let last = self.layers.len() - 1;
-        let mut x = enc.clone();
-        for (l, layer) in self.layers.iter().enumerate() {
-            if l == self.skip {
-                x = Tensor::cat(vec![x, enc.clone()], 1);
-            }
-            x = layer.forward(x);
-            if l < last {
-                x = leaky_relu(x, SLOPE);
-            }
+    /// The MLP on encodings `[N, L·F]`: pre-sigmoid outputs `[N, 1]`. One op
+    /// ([`crate::ops::mlp`]) on the layers' parameters packed in order (a layer without a bias
+    /// packs zeros), so gradients reach each `Linear` as before.
+    pub fn decode(&self, enc: Tensor<2>) -> Result<Tensor<2>> {
+        let layout = self.layout();
+        let packed: Vec<Tensor<1>> = self
+            .layers
+            .iter()
+            .enumerate()
+            .flat_map(|(l, layer)| {
+                let w = layer.weight.val();
+                let size = w.dims().iter().product::<usize>();
+                let bias = match &layer.bias {
+                    Some(b) => b.val(),
+                    None => Tensor::zeros([layout.d_out(l)], &w.device()),
+                };
+                [w.reshape([size]), bias]
+            })
+            .collect();
+        mlp(enc, Tensor::cat(packed, 0), layout)
+    }
+
+    /// The MLP's shape as [`crate::ops::mlp`] takes it.
+    pub fn layout(&self) -> MlpLayout {
+        MlpLayout {
+            input: self.grid.width(),
+            width: self.layers[0].weight.dims()[1],
+            layers: self.layers.len(),
+            skip: self.skip,
+            slope: SLOPE as f32,
         }
-        x
     }
 
     /// The table layout.

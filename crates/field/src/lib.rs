@@ -1,7 +1,9 @@
 //! Neural attenuation fields (NAF, Zha et al., MICCAI 2022): a multiresolution hash-grid encoder
 //! as a Burn custom op with a hand-written backward ([`ops::encode`]; CPU kernels in [`cpu`],
-//! CubeCL kernels for wgpu), and the field module that decodes it ([`NeuralField`]). This crate
-//! is a leaf: it knows points in the unit cube, not scans or rays.
+//! CubeCL kernels for wgpu), NAF's MLP as one op with a hand-written backward ([`ops::mlp`]; a
+//! fused CPU kernel in [`mlp`], the backend's own tensor ops on wgpu), and the field module
+//! that chains them ([`NeuralField`]). This crate is a leaf: it knows points in the unit cube,
+//! not scans or rays.
 //!
 //! ```no_run
 //! use burn::tensor::{Device, Tensor};
@@ -22,6 +24,7 @@ mod cube;
 pub mod error;
 pub mod field;
 pub mod grid;
+pub mod mlp;
 pub mod ops;
 
 pub use error::{FieldError, Result};

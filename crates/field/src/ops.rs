@@ -12,6 +12,7 @@ use burn::tensor::{DType, Tensor};
 
 use crate::error::{FieldError, Result};
 use crate::grid::HashGrid;
+use crate::mlp::MlpLayout;
 
 /// The hash-grid encoder as a backend op (CPU: [`crate::cpu`]; wgpu: `crate::cube`), with its
 /// backward as an op of its own.
@@ -38,6 +39,24 @@ pub trait FieldOps: Backend {
         grid: HashGrid,
         grad: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
+
+    /// The MLP's outputs `[N, 1]` at encodings `enc` `[N, input]` with the packed `params`
+    /// ([`crate::mlp`]).
+    #[fusion(dtype = enc, shape = fusion_shapes::mlp(enc))]
+    fn field_mlp(
+        enc: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        layout: MlpLayout,
+    ) -> FloatTensor<Self>;
+
+    /// The gradients of `⟨grad, field_mlp(enc, params)⟩` with respect to `enc` and `params`.
+    #[fusion(meta = |enc, params, _layout, _grad| (enc.clone(), params.clone()))]
+    fn field_mlp_backward(
+        enc: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        layout: MlpLayout,
+        grad: FloatTensor<Self>,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
 }
 
 /// Output shapes from input shapes (Burn's `Fusion` queues ops before they run).
@@ -53,6 +72,11 @@ mod fusion_shapes {
     #[allow(dead_code)]
     pub fn table(grid: &HashGrid) -> Shape {
         Shape::from(vec![grid.rows(), grid.features])
+    }
+
+    #[allow(dead_code)]
+    pub fn mlp(enc: &Shape) -> Shape {
+        Shape::from(vec![enc[0], 1])
     }
 }
 
@@ -85,5 +109,31 @@ pub fn encode(points: Tensor<2>, table: Tensor<2>, grid: &HashGrid) -> Result<Te
         points.into_dispatch(),
         table.into_dispatch(),
         grid.clone(),
+    )))
+}
+
+/// The MLP of [`crate::mlp`] at encodings `enc` `[N, layout.input]` with the packed `params`
+/// `[layout.params()]`: `[N, 1]`. Differentiable with respect to both.
+pub fn mlp(enc: Tensor<2>, params: Tensor<1>, layout: MlpLayout) -> Result<Tensor<2>> {
+    if enc.dims()[1] != layout.input {
+        return Err(FieldError::invalid(
+            "enc",
+            format!("must be [N, {}], got {:?}", layout.input, enc.dims()),
+        ));
+    }
+    if params.dims()[0] != layout.params() {
+        return Err(FieldError::invalid(
+            "params",
+            format!(
+                "must hold {} values, got {}",
+                layout.params(),
+                params.dims()[0]
+            ),
+        ));
+    }
+    Ok(Tensor::from_dispatch(Dispatch::field_mlp(
+        enc.into_dispatch(),
+        params.into_dispatch(),
+        layout,
     )))
 }

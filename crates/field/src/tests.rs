@@ -203,3 +203,86 @@ fn wgpu_matches_the_cpu() {
         );
     }
 }
+
+/// The MLP as Burn's own layers compose it (NAF's definition): the reference of the fused op.
+fn decode_by_layers(field: &NeuralField, enc: Tensor<2>) -> Tensor<2> {
+    use burn::tensor::activation::leaky_relu;
+    let layout = field.layout();
+    let mut x = enc.clone();
+    for (l, layer) in field.layers.iter().enumerate() {
+        if l == layout.skip {
+            x = Tensor::cat(vec![x, enc.clone()], 1);
+        }
+        x = layer.forward(x);
+        if l + 1 < field.layers.len() {
+            x = leaky_relu(x, layout.slope as f64);
+        }
+    }
+    x
+}
+
+/// Values and gradients (every layer's weight and bias, the encodings) of `decode` on `device`
+/// against Burn's layers on the same device.
+fn check_decode_against_layers(device: &Device, tolerance: f32) {
+    let config = FieldConfig {
+        hash_grid: HashGridConfig {
+            levels: 3,
+            features: 2,
+            base_resolution: 4,
+            growth: 1.5,
+            log2_table_size: 6,
+        },
+        width: 7,
+        layers: 4,
+        skip: 2,
+        table_lr_scale: 1.0,
+    };
+    let field = config.init(3, device).unwrap();
+    let width = field.grid().width();
+    // More points than a CPU task (512), so tasks are split and joined.
+    let n = 1100;
+    let enc_values = random(n * width, -1.0, 1.0, 21);
+    let up = tensor(random(n, -1.0, 1.0, 22), [n, 1], device);
+    let run = |fused: bool| {
+        let enc = tensor(enc_values.clone(), [n, width], device).require_grad();
+        let out = if fused {
+            field.decode(enc.clone()).unwrap()
+        } else {
+            decode_by_layers(&field, enc.clone())
+        };
+        let grads = (out.clone() * up.clone()).sum().backward();
+        let mut g = vec![values(out), values(enc.grad(&grads).unwrap())];
+        for layer in &field.layers {
+            g.push(values(layer.weight.grad(&grads).unwrap()));
+            let b = layer.bias.as_ref().unwrap().grad(&grads).unwrap();
+            g.push(b.into_data().try_to_vec::<f32>().unwrap());
+        }
+        g
+    };
+    let (got, want) = (run(true), run(false));
+    let names = ["outputs", "encodings' gradient"];
+    for (k, (a, b)) in got.iter().zip(&want).enumerate() {
+        assert_eq!(a.len(), b.len());
+        let what = names
+            .get(k)
+            .map_or_else(|| format!("parameter {}", k - 2), |s| s.to_string());
+        let scale = b.iter().fold(1f32, |m, v| m.max(v.abs()));
+        for (i, (x, y)) in a.iter().zip(b).enumerate() {
+            assert!((x - y).abs() <= tolerance * scale, "{what} {i}: {x} vs {y}");
+        }
+    }
+}
+
+#[test]
+fn the_fused_mlp_matches_burns_layers_and_their_gradients() {
+    // The same sums in another order (f32): 1e-5 of the largest value.
+    check_decode_against_layers(&cpu_device().autodiff(), 1e-5);
+}
+
+/// On wgpu the MLP is composed of the backend's own ops (`mlp::by_ops`).
+#[cfg(feature = "wgpu")]
+#[test]
+fn the_composed_mlp_on_wgpu_matches_burns_layers() {
+    let gpu = Device::wgpu(burn::tensor::DeviceKind::DefaultDevice).autodiff();
+    check_decode_against_layers(&gpu, 1e-4);
+}
