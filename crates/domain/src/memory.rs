@@ -36,9 +36,15 @@ pub fn bytes(n: usize, size: usize) -> u64 {
 }
 
 /// What a computation holds at its peak, item by item (an estimate, in bytes).
+///
+/// `items` are held for the whole computation. A computation that goes through phases whose
+/// buffers never coexist (a run's initialisation, its training, its final scoring) lists each
+/// phase's own items under `phases`: the peak is what is held throughout plus the largest phase.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Footprint {
     pub items: Vec<(String, u64)>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub phases: Vec<(String, Vec<(String, u64)>)>,
 }
 
 impl Footprint {
@@ -49,24 +55,54 @@ impl Footprint {
         f
     }
 
-    /// Add an item.
+    /// Add an item held throughout.
     pub fn add(&mut self, what: impl Into<String>, bytes: u64) -> &mut Self {
         self.items.push((what.into(), bytes));
         self
     }
 
-    /// The estimated peak, bytes.
-    pub fn total(&self) -> u64 {
-        self.items.iter().fold(0u64, |a, i| a.saturating_add(i.1))
+    /// Add an item held only during `phase` (the phase is made at its first item).
+    pub fn add_in(&mut self, phase: &str, what: impl Into<String>, bytes: u64) -> &mut Self {
+        let item = (what.into(), bytes);
+        match self.phases.iter_mut().find(|p| p.0 == phase) {
+            Some(p) => p.1.push(item),
+            None => self.phases.push((phase.to_string(), vec![item])),
+        }
+        self
     }
 
-    /// One line per item and the total, for `--dry-run`.
+    /// The phase holding the most, with its bytes (`None` without phases).
+    pub fn largest_phase(&self) -> Option<(&str, u64)> {
+        self.phases
+            .iter()
+            .map(|(name, items)| (name.as_str(), sum(items)))
+            .fold(None, |best: Option<(&str, u64)>, p| match best {
+                Some(b) if b.1 >= p.1 => Some(b),
+                _ => Some(p),
+            })
+    }
+
+    /// The estimated peak, bytes: what is held throughout plus the largest phase.
+    pub fn total(&self) -> u64 {
+        sum(&self.items).saturating_add(self.largest_phase().map_or(0, |p| p.1))
+    }
+
+    /// One line per item (phases under their names) and the total, for `--dry-run`.
     pub fn describe(&self) -> String {
         let mut s = String::new();
         for (what, b) in &self.items {
             s.push_str(&format!("  {:>10}  {what}\n", human(*b)));
         }
+        for (phase, items) in &self.phases {
+            s.push_str(&format!("  during {phase} only:\n"));
+            for (what, b) in items {
+                s.push_str(&format!("    {:>10}  {what}\n", human(*b)));
+            }
+        }
         s.push_str(&format!("  {:>10}  estimated peak", human(self.total())));
+        if let Some((phase, _)) = self.largest_phase() {
+            s.push_str(&format!(", during {phase}"));
+        }
         if let Some(a) = available() {
             s.push_str(&format!(" ({} available)", human(a)));
         }
@@ -90,6 +126,10 @@ impl Footprint {
             _ => Ok(()),
         }
     }
+}
+
+fn sum(items: &[(String, u64)]) -> u64 {
+    items.iter().fold(0u64, |a, i| a.saturating_add(i.1))
 }
 
 /// Memory the kernel says is available for new allocations (`MemAvailable`), bytes; `None`
@@ -152,6 +192,23 @@ mod tests {
         small.add("one kB", 1000);
         small.check("a small job", false).unwrap();
         assert!(small.describe().contains("1.0 kB  one kB"));
+    }
+
+    #[test]
+    fn phases_that_never_coexist_count_once_at_the_largest() {
+        let mut f = Footprint::default();
+        f.add("held", 10)
+            .add_in("init", "fdk", 30)
+            .add_in("training", "gaussians", 25)
+            .add_in("training", "images", 15)
+            .add_in("scoring", "maps", 35);
+        // 10 + max(30, 25 + 15, 35).
+        assert_eq!(f.total(), 50);
+        assert_eq!(f.largest_phase(), Some(("training", 40)));
+        let d = f.describe();
+        assert!(d.contains("during training only:"), "{d}");
+        assert!(d.contains("estimated peak, during training"), "{d}");
+        assert_eq!(Footprint::process().largest_phase(), None);
     }
 
     #[test]

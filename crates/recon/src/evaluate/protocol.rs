@@ -84,12 +84,18 @@ impl Protocol {
 
     /// Add what scoring holds at its peak to `f`: one channel's prediction and reference
     /// resampled to the evaluation grid (or on the scene's own) with the SSIM maps.
-    pub fn add_footprint(&self, f: &mut prism_domain::memory::Footprint, native_voxels: usize) {
+    pub fn add_footprint(
+        &self,
+        f: &mut prism_domain::memory::Footprint,
+        phase: &str,
+        native_voxels: usize,
+    ) {
         let voxels = self.grid.map_or(native_voxels, |n| n.saturating_pow(3));
         let on = self
             .grid
             .map_or("the native grid".to_string(), |n| format!("{n}³"));
-        f.add(
+        f.add_in(
+            phase,
             format!("scoring one channel on {on} (both volumes, SSIM maps)"),
             prism_domain::memory::bytes(voxels, VOXEL_BYTES as usize),
         );

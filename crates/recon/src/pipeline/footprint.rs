@@ -1,8 +1,11 @@
 //! A run's peak memory, estimated before it starts (`prism recon --dry-run` prints it; `recon`
 //! refuses a run above the memory available unless `--allow-memory`).
 //!
-//! Every method holds the scene (projections and reference volumes) and its output volumes.
-//! On top of that, per channel (channels run one after another):
+//! Every method holds the scene (projections and reference volumes) and its output volumes
+//! throughout. On top of that comes the largest of three phases whose buffers never coexist:
+//! [`INITIALISATION`] (a learned method's FDK), [`TRAINING`] (below; scoring during training
+//! included when the log scores), and [`SCORING`] (the final scores, [`run_footprint`]).
+//! Training holds, per channel (channels run one after another):
 //! * classic methods: the filtered projections or residuals of one channel and a few volumes;
 //!   `tv` holds every channel at once (primal, extrapolated and step volumes, the gradient duals,
 //!   and a data dual with its steps per training ray);
@@ -36,10 +39,24 @@ pub const GAUSSIAN_BYTES: u64 = 1_980;
 /// this term, after the one-channel calibration above had the rest 8 MB high: 0.148.
 pub const RETAINED_PER_CHANNEL: f64 = 0.148;
 
+/// Bytes per voxel and channel of 4D-SG's final volumes: every channel is voxelised at once
+/// (the model's output tensor, its host copy, the per-channel volumes: 3 × 4 bytes), and the
+/// allocator still holds those pages (freed lazily) while the channels are scored. Measured
+/// with `prism bench scaling`: 4D-SG's peak against the channel count (2 → 8 channels at 128³)
+/// grows by 32 bytes per voxel and channel, of which the scene's reference and the output
+/// volume are 8.
+pub const VOXELISED_BYTES: u64 = 12;
+
 /// Bytes per detector pixel of one view at an iteration's peak (image, target, SSIM maps).
 pub const PIXEL_BYTES: u64 = 200;
 
 pub use crate::evaluate::protocol::VOXEL_BYTES;
+
+/// The phases of a run whose buffers never coexist (each one's are freed before the next
+/// starts): the peak is what the run holds throughout plus the largest of them.
+pub const INITIALISATION: &str = "initialisation";
+pub const TRAINING: &str = "training";
+pub const SCORING: &str = "the final scoring";
 
 /// The estimated peak memory of a run as `prism recon` and a suite cell make it: [`footprint`]
 /// and, when the scene has references, scoring them under `evaluation` (the only volume-sized
@@ -53,7 +70,7 @@ pub fn run_footprint(
     if scene.references.is_some() {
         evaluation
             .protocol
-            .add_footprint(&mut peak, scene.geometry.volume.len());
+            .add_footprint(&mut peak, SCORING, scene.geometry.volume.len());
     }
     peak
 }
@@ -85,11 +102,16 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
     let view_pixels = rows * cols;
     match config {
         MethodConfig::Classic(c) => {
-            f.add(
+            f.add_in(
+                TRAINING,
                 "one channel's filtered projections or residuals",
                 bytes(train * view_pixels, 8),
             );
-            f.add("working volumes", bytes(voxels, VOXEL_BYTES as usize));
+            f.add_in(
+                TRAINING,
+                "working volumes",
+                bytes(voxels, VOXEL_BYTES as usize),
+            );
             if c.method == ClassicMethod::Sart {
                 let blocks = block_count(train, c.block_size);
                 let kept = if caches_column_sums(blocks, voxels) {
@@ -97,17 +119,20 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 } else {
                     1
                 };
-                f.add(
+                f.add_in(
+                    TRAINING,
                     format!("SART's column sums ({kept} of {blocks} blocks kept)"),
                     bytes(voxels, 4 * kept),
                 );
             }
             if c.method == ClassicMethod::Tv {
-                f.add(
+                f.add_in(
+                    TRAINING,
                     format!("TV's primal, step and gradient-dual volumes ({channels} channels)"),
                     bytes(voxels, 4 * 6 * channels),
                 );
-                f.add(
+                f.add_in(
+                    TRAINING,
                     "TV's data duals and their steps (every channel's training rays)",
                     bytes(train * view_pixels, 8 * channels),
                 );
@@ -116,14 +141,20 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
         // Below, from the geometry stage's settings.
         MethodConfig::R2gs(_) | MethodConfig::FourDsg(_) => {}
         MethodConfig::Naf(c) => {
+            add_fdk(&mut f, voxels, train * view_pixels);
             let h = &c.field.hash_grid;
             let table = h.levels * (1usize << h.log2_table_size.min(40)) * h.features;
-            f.add(
+            f.add_in(
+                TRAINING,
                 "hash-grid tables with gradients and Adam moments",
                 bytes(table, 16),
             );
+            if scene.references.is_some() {
+                add_training_scores(&mut f, voxels);
+            }
             let samples = c.rays_per_batch.saturating_mul(c.samples_per_ray);
-            f.add(
+            f.add_in(
+                TRAINING,
                 format!(
                     "one batch of {samples} samples through the network (forward and backward)"
                 ),
@@ -143,11 +174,12 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
             Method::FourDsg => channels,
             _ => 1,
         };
-        f.add(
-            "the FDK initialisation (volume and its filtered projections)",
-            bytes(voxels, 8).saturating_add(bytes(train * view_pixels, 4)),
-        );
-        f.add(
+        add_fdk(&mut f, voxels, train * view_pixels);
+        if c.eval_every > 0 && scene.references.is_some() {
+            add_training_scores(&mut f, voxels);
+        }
+        f.add_in(
+            TRAINING,
             format!(
                 "{k} Gaussians (at the densification cap; {} at the start), with gradients, \
                  Adam moments and an iteration's transients",
@@ -157,7 +189,8 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
         );
         if config.method() == Method::R2gs && channels > 1 {
             let working = bytes(k, GAUSSIAN_BYTES as usize) as f64;
-            f.add(
+            f.add_in(
+                TRAINING,
                 format!(
                     "pages kept from earlier channels ({} × {:.0} % of the Gaussians' working \
                      set)",
@@ -174,7 +207,8 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
             _ => 1,
         };
         if finished > 0 {
-            f.add(
+            f.add_in(
+                TRAINING,
                 format!("{finished} finished stages' state kept for checkpoints"),
                 bytes(k, 12 * 11 * finished),
             );
@@ -192,7 +226,8 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 .saturating_mul(channels)
                 .saturating_mul(m.width)
                 .saturating_mul(8 * depth);
-            f.add(
+            f.add_in(
+                TRAINING,
                 format!(
                     "the curve model (width {}, depth {depth}): parameters with gradients and \
                      Adam moments, activations at {nodes} nodes × {channels} channels",
@@ -201,10 +236,41 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 bytes(params, 16).saturating_add(bytes(acts, 4)),
             );
         }
-        f.add(
+        f.add_in(
+            TRAINING,
             format!("an iteration's images ({columns} × {rows}×{cols})"),
             bytes(view_pixels, (PIXEL_BYTES * columns as u64) as usize),
         );
+        if config.method() == Method::FourDsg {
+            f.add_in(
+                SCORING,
+                format!(
+                    "every channel voxelised at once ({channels} × {voxels} voxels: the model's \
+                     output, its host copy and the per-channel volumes)"
+                ),
+                bytes(voxels, (VOXELISED_BYTES * channels as u64) as usize),
+            );
+        }
     }
     f
+}
+
+/// The FDK a learned method starts from (its density scale, and the Gaussians' initial
+/// positions): the volume and one channel's filtered projections, freed before training.
+fn add_fdk(f: &mut Footprint, voxels: usize, train_pixels: usize) {
+    f.add_in(
+        INITIALISATION,
+        "the FDK initialisation (volume and its filtered projections)",
+        bytes(voxels, 8).saturating_add(bytes(train_pixels, 4)),
+    );
+}
+
+/// Scoring a channel during training (the log's PSNR and SSIM every `eval_every` iterations),
+/// beside the training state.
+fn add_training_scores(f: &mut Footprint, voxels: usize) {
+    f.add_in(
+        TRAINING,
+        "scoring one channel during training (its volume, SSIM maps)",
+        bytes(voxels, VOXEL_BYTES as usize),
+    );
 }

@@ -10,7 +10,10 @@
 //! Power laws `t ∝ xᵇ` are fitted per series and axis (least squares in log-log). Writes
 //! `scaling.json` and log-log figures `scaling-time.{png,svg}` and `scaling-memory.{png,svg}`;
 //! prints the fitted exponents and the estimates off by more than 20 % as JSON on stdout.
+//! With `--baseline <previous prism>` every point is also measured by that binary, alternately,
+//! and the ratios are reported ([`baseline`]): the guard against a slower or larger iteration.
 
+mod baseline;
 mod fit;
 mod point;
 
@@ -50,6 +53,11 @@ pub struct ScalingArgs {
     /// channels) that checks the bench end to end in seconds.
     #[arg(long)]
     quick: bool,
+    /// A previous prism binary: every point is measured by it too, right after this one, and
+    /// the ratios this / previous are reported; a series more than 25 % slower (or a peak
+    /// 25 % larger) fails the sweep.
+    #[arg(long, value_name = "PRISM")]
+    baseline: Option<PathBuf>,
     /// One measurement as JSON (internal: the sweep runs each point in its own process).
     #[arg(long, hide = true, requires = "method")]
     point: Option<String>,
@@ -180,6 +188,13 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
     } else {
         a.methods.clone()
     };
+    if let Some(b) = &a.baseline {
+        anyhow::ensure!(
+            b.is_file(),
+            "--baseline {}: not found (the path of a previous prism binary)",
+            b.display()
+        );
+    }
     for file in std::iter::once(a.configs.join(point::SCENE))
         .chain(methods.iter().map(|&m| point::config_file(&a.configs, m)))
     {
@@ -211,6 +226,7 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
     let scenes = tempfile::tempdir()?;
     let mut simulated: Vec<Point> = Vec::new();
     let mut results: Vec<(Point, Method, Result<Measured, String>)> = Vec::new();
+    let mut previous: Vec<Result<Measured, String>> = Vec::new();
     for (i, &(p, m)) in plan.iter().enumerate() {
         let key = Point { gaussians: 0, ..p };
         let dir = scenes.path().join(format!(
@@ -239,6 +255,19 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
                 Err(e) => format!("failed: {e}"),
             }
         );
+        if let Some(b) = &a.baseline {
+            let old = measure_apart(b, &a, &dir, p, m);
+            if let (Ok(new), Ok(old)) = (&r, &old) {
+                let ratio = &baseline::ratios(&[(new, old)])[0];
+                let times: Vec<String> = ratio
+                    .time
+                    .iter()
+                    .map(|(s, v)| format!("{s} {v:.2}×"))
+                    .collect();
+                eprintln!("    against the baseline: {}", times.join(", "));
+            }
+            previous.push(old);
+        }
         results.push((p, m, r));
     }
     let measured: Vec<&Measured> = results.iter().filter_map(|r| r.2.as_ref().ok()).collect();
@@ -259,7 +288,14 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
             })
         })
         .collect();
-    let summary = json!({
+    let pairs: Vec<(&Measured, &Measured)> = results
+        .iter()
+        .zip(&previous)
+        .filter_map(|(r, old)| Some((r.2.as_ref().ok()?, old.as_ref().ok()?)))
+        .collect();
+    let ratios = baseline::ratios(&pairs);
+    let regressions = baseline::regressions(&ratios);
+    let mut summary = json!({
         "base": base,
         "warmup": a.warmup,
         "window": a.window,
@@ -268,6 +304,13 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
         "fits": fits,
         "estimate_off_by_more_than_20_percent": off,
     });
+    if let Some(b) = &a.baseline {
+        summary["baseline"] = json!({
+            "binary": b,
+            "median_ratio": baseline::medians(&ratios),
+            "regressions": regressions,
+        });
+    }
     let failures: Vec<serde_json::Value> = results
         .iter()
         .filter_map(|(p, m, r)| {
@@ -278,6 +321,9 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
         .collect();
     let mut full = summary.clone();
     full["measurements"] = serde_json::to_value(&measured)?;
+    if a.baseline.is_some() {
+        full["baseline"]["ratios"] = serde_json::to_value(&ratios)?;
+    }
     full["failed"] = json!(failures);
     let json_path = a.output.join("scaling.json");
     std::fs::write(&json_path, serde_json::to_string_pretty(&full)?)?;
@@ -298,6 +344,19 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
         failures.len(),
         plan.len(),
         json_path.display()
+    );
+    let lost = previous.iter().filter(|r| r.is_err()).count();
+    anyhow::ensure!(
+        lost == 0,
+        "the baseline failed {lost} of {} measurements (is it a prism with `bench scaling`?)",
+        plan.len()
+    );
+    anyhow::ensure!(
+        regressions.is_empty(),
+        "{} regressions against the baseline (more than {:.0} % slower or larger): {}",
+        regressions.len(),
+        100.0 * baseline::REGRESSION,
+        regressions.join("; ")
     );
     Ok(())
 }
