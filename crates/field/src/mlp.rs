@@ -9,10 +9,11 @@
 //!
 //! CPU ([`cpu_forward`], [`cpu_backward`]): tasks of [`TASK`] points on rayon. The backward
 //! recomputes its task's forward (the activations of 512 points stay in cache, none is stored
-//! between the passes); every inner loop is an `axpy` over a row, which the compiler
-//! vectorises. Each task's parameter gradient is summed in task order, so results do not depend
-//! on the thread count. Other backends ([`by_ops`]) compose the same function from their own
-//! tensor ops.
+//! between the passes). Every product sums a block of 32 (or 8) outputs in registers over its
+//! whole input, each output in input order, compiled for AVX2 where the CPU has it (no fused
+//! multiply-add, so the results are the same without it). Each task's parameter gradient is
+//! summed in task order, so results do not depend on the thread count either. Other backends
+//! ([`by_ops`]) compose the same function from their own tensor ops.
 
 use rayon::prelude::*;
 
@@ -458,7 +459,7 @@ mod tests {
     use super::*;
     use crate::tests::random;
 
-    pub(crate) fn layout() -> MlpLayout {
+    fn layout() -> MlpLayout {
         MlpLayout {
             input: 6,
             width: 5,
