@@ -15,6 +15,7 @@
 //! summed in task order, so results do not depend on the thread count either. Other backends
 //! ([`by_ops`]) compose the same function from their own tensor ops.
 
+use prism_kernel::cpu::sum_partials;
 use rayon::prelude::*;
 
 /// Points per parallel task.
@@ -32,13 +33,22 @@ pub struct MlpLayout {
 }
 
 impl MlpLayout {
-    /// Inputs of layer `l`.
-    pub fn d_in(&self, l: usize) -> usize {
+    /// The first of layer `l`'s input rows that hold the encoding: 0 for the first layer (its
+    /// whole input), `width` for the skip layer (after the previous activation), none for the
+    /// other layers.
+    pub fn encoding_rows(&self, l: usize) -> Option<usize> {
         match l {
-            0 => self.input,
-            l if l == self.skip => self.width + self.input,
-            _ => self.width,
+            0 => Some(0),
+            l if l == self.skip => Some(self.width),
+            _ => None,
         }
+    }
+
+    /// Inputs of layer `l`: the previous activation (not the first layer's), then the
+    /// encoding where the layer reads it.
+    pub fn d_in(&self, l: usize) -> usize {
+        let previous = if l == 0 { 0 } else { self.width };
+        previous + self.encoding_rows(l).map_or(0, |_| self.input)
     }
 
     /// Outputs of layer `l`.
@@ -66,8 +76,10 @@ impl MlpLayout {
     }
 }
 
-/// Runs a task function compiled for AVX2 where the CPU has it (else for the build's baseline):
-/// the same operations (no fused multiply-add), so the results are identical either way.
+/// Runs a task function compiled for AVX2 where the kernels' run-time choice allows the wide
+/// variants ([`prism_kernel::simd::has_avx2_fma`], which tests and benchmarks can turn off),
+/// else for the build's baseline. Only AVX2 is enabled, not FMA: the same operations in the same
+/// order, so the results are identical either way.
 macro_rules! on_best_simd {
     ($task:ident($($arg:expr),*)) => {{
         #[cfg(target_arch = "x86_64")]
@@ -76,8 +88,8 @@ macro_rules! on_best_simd {
             fn wide(f: impl FnOnce()) {
                 f()
             }
-            if std::is_x86_feature_detected!("avx2") {
-                // SAFETY: the CPU has AVX2 (checked just above).
+            if prism_kernel::simd::has_avx2_fma() {
+                // SAFETY: `has_avx2_fma` confirmed that the CPU has AVX2 (and FMA).
                 let mut result = None;
                 unsafe { wide(|| result = Some($task($($arg),*))) };
                 result.expect("the task ran")
@@ -110,7 +122,7 @@ fn blocks(d_out: usize) -> impl Iterator<Item = (usize, usize)> {
         .chain((narrow..d_out).map(|j| (j, 1)))
 }
 
-/// `acc[t] += Σ_k x[k·x_stride] · w[k·w_stride + j0 + t]` for `k < n`, `t < B`: one block of
+/// `acc[t] += Σ_k x[k·x_stride] · w[k·w_stride + t]` for `k < n`, `t < B`: one block of
 /// outputs held in registers over a whole sum (each output summed in `k` order).
 #[inline(always)]
 fn block_sum<const B: usize>(
@@ -120,38 +132,27 @@ fn block_sum<const B: usize>(
     x_stride: usize,
     w: &[f32],
     w_stride: usize,
-    j0: usize,
 ) {
-    let mut a: [f32; B] = acc[..B].try_into().expect("a block");
+    let mut a: [f32; B] = acc.try_into().expect("a block");
     for k in 0..n {
         let xk = x[k * x_stride];
-        let wk: &[f32; B] = w[k * w_stride + j0..k * w_stride + j0 + B]
+        let wk: &[f32; B] = w[k * w_stride..k * w_stride + B]
             .try_into()
             .expect("a block");
         for (a, &wv) in a.iter_mut().zip(wk) {
             *a += xk * wv;
         }
     }
-    acc[..B].copy_from_slice(&a);
+    acc.copy_from_slice(&a);
 }
 
-/// [`block_sum`] for a block of width `b` (one of [`blocks`]').
+/// [`block_sum`] on a block of [`blocks`]' widths (`acc.len()`).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn block_sum_of(
-    b: usize,
-    acc: &mut [f32],
-    n: usize,
-    x: &[f32],
-    x_stride: usize,
-    w: &[f32],
-    w_stride: usize,
-    j0: usize,
-) {
-    match b {
-        WIDE => block_sum::<WIDE>(acc, n, x, x_stride, w, w_stride, j0),
-        NARROW => block_sum::<NARROW>(acc, n, x, x_stride, w, w_stride, j0),
-        _ => block_sum::<1>(acc, n, x, x_stride, w, w_stride, j0),
+fn block_sum_of(acc: &mut [f32], n: usize, x: &[f32], x_stride: usize, w: &[f32], w_stride: usize) {
+    match acc.len() {
+        WIDE => block_sum::<WIDE>(acc, n, x, x_stride, w, w_stride),
+        NARROW => block_sum::<NARROW>(acc, n, x, x_stride, w, w_stride),
+        _ => block_sum::<1>(acc, n, x, x_stride, w, w_stride),
     }
 }
 
@@ -160,7 +161,7 @@ fn block_sum_of(
 fn row_times(x: &[f32], w: &[f32], out: &mut [f32]) {
     let d_out = out.len();
     for (j0, b) in blocks(d_out) {
-        block_sum_of(b, &mut out[j0..j0 + b], x.len(), x, 1, w, d_out, j0);
+        block_sum_of(&mut out[j0..j0 + b], x.len(), x, 1, &w[j0..], d_out);
     }
 }
 
@@ -173,7 +174,7 @@ fn input_times(x: &[f32], dz: &[f32], m: usize, dw: &mut [f32]) {
     let cols = x.len() / m.max(1);
     for (k, row) in dw.chunks_exact_mut(d_out).enumerate() {
         for (j0, b) in blocks(d_out) {
-            block_sum_of(b, &mut row[j0..j0 + b], m, &x[k..], cols, dz, d_out, j0);
+            block_sum_of(&mut row[j0..j0 + b], m, &x[k..], cols, &dz[j0..], d_out);
         }
     }
 }
@@ -199,15 +200,13 @@ impl Pass {
             let mut z = vec![0f32; n * d_out];
             for (i, row) in z.chunks_exact_mut(d_out).enumerate() {
                 row.copy_from_slice(bias);
-                let enc_row = &enc[i * e..(i + 1) * e];
-                if l == 0 {
-                    row_times(enc_row, &params[wo..], row);
-                    continue;
+                if l > 0 {
+                    let prev = &pass.a[l - 1][i * width..(i + 1) * width];
+                    row_times(prev, &params[wo..], row);
                 }
-                let prev = &pass.a[l - 1][i * width..(i + 1) * width];
-                row_times(prev, &params[wo..], row);
-                if l == layout.skip {
-                    row_times(enc_row, &params[wo + width * d_out..], row);
+                if let Some(from) = layout.encoding_rows(l) {
+                    let enc_row = &enc[i * e..(i + 1) * e];
+                    row_times(enc_row, &params[wo + from * d_out..], row);
                 }
             }
             if l + 1 < layout.layers {
@@ -271,13 +270,7 @@ pub fn cpu_backward(
             on_best_simd!(backward_task(layout, &transposed, enc, params, grad, d_enc))
         })
         .collect();
-    let mut d_params = vec![0f32; layout.params()];
-    for t in &task_params {
-        for (a, &b) in d_params.iter_mut().zip(t) {
-            *a += b;
-        }
-    }
-    (d_enc, d_params)
+    (d_enc, sum_partials(task_params, layout.params()))
 }
 
 /// A task's gradient of the packed parameters; its encodings' gradient is added to `d_enc`.
@@ -299,15 +292,14 @@ fn backward_task(
     for l in (0..layout.layers).rev() {
         let (d_in, d_out) = (layout.d_in(l), layout.d_out(l));
         let (wo, bo) = layout.offsets(l);
-        // The weight's rows: the previous activation's, then the encoding's (layer 0: the
-        // encoding's alone).
-        let from_enc = if l == 0 { 0 } else { width };
+        // The weight's rows: the previous activation's, then the encoding's.
+        let reads_enc = layout.encoding_rows(l);
         let (dw, db) = d_params[wo..bo + d_out].split_at_mut(bo - wo);
-        let (dw_prev, dw_enc) = dw.split_at_mut(from_enc * d_out);
+        let (dw_prev, dw_enc) = dw.split_at_mut(reads_enc.unwrap_or(d_in) * d_out);
         if l > 0 {
             input_times(&pass.a[l - 1], &dz, m, dw_prev);
         }
-        if l == 0 || l == layout.skip {
+        if reads_enc.is_some() {
             input_times(enc, &dz, m, dw_enc);
         }
         for g in dz.chunks_exact(d_out) {
@@ -320,9 +312,9 @@ fn backward_task(
         for (g, row) in dz.chunks_exact(d_out).zip(dx.chunks_exact_mut(d_in)) {
             row_times(g, &transposed[l], row);
         }
-        if l == 0 || l == layout.skip {
+        if let Some(from) = reads_enc {
             for (de, row) in d_enc.chunks_exact_mut(e).zip(dx.chunks_exact(d_in)) {
-                for (a, &b) in de.iter_mut().zip(&row[from_enc..]) {
+                for (a, &b) in de.iter_mut().zip(&row[from..]) {
                     *a += b;
                 }
             }
@@ -388,9 +380,9 @@ pub mod by_ops {
         for l in 0..layout.layers {
             if l > 0 {
                 x = leaky::<B>(layout, saved[l - 1].1.clone());
-            }
-            if l == layout.skip {
-                x = B::float_cat(vec![x, enc.clone()], 1);
+                if layout.encoding_rows(l).is_some() {
+                    x = B::float_cat(vec![x, enc.clone()], 1);
+                }
             }
             let (w, b) = layer::<B>(layout, params, l);
             let z = B::float_add(B::float_matmul(x.clone(), w), b);
@@ -426,12 +418,7 @@ pub mod by_ops {
             pieces.push(B::float_reshape(db, Shape::new([layout.d_out(l)])));
             pieces.push(B::float_reshape(dw, Shape::new([size])));
             let dx = B::float_matmul(dz, B::float_transpose(w));
-            let from = match l {
-                0 => Some(0),
-                l if l == layout.skip => Some(layout.width),
-                _ => None,
-            };
-            if let Some(from) = from {
+            if let Some(from) = layout.encoding_rows(l) {
                 let part = columns::<B>(dx.clone(), n, from, from + layout.input);
                 d_enc = Some(match d_enc {
                     Some(d) => B::float_add(d, part),
@@ -537,6 +524,26 @@ mod tests {
         for (i, (a, b)) in out.iter().zip(want).enumerate() {
             assert!((*a as f64 - b).abs() < 1e-5, "point {i}: {a} vs {b}");
         }
+    }
+
+    #[test]
+    fn the_wide_and_baseline_variants_agree_exactly() {
+        // Without FMA the AVX2 build performs the same operations in the same order.
+        let l = layout();
+        let n = TASK + 5;
+        let enc = random(n * l.input, -1.0, 1.0, 16);
+        let params = random(l.params(), -0.6, 0.6, 17);
+        let grad = random(n, -1.0, 1.0, 18);
+        let run = |baseline: bool| {
+            prism_kernel::simd::force_baseline(baseline);
+            let out = (
+                cpu_forward(&l, &enc, &params),
+                cpu_backward(&l, &enc, &params, &grad),
+            );
+            prism_kernel::simd::force_baseline(false);
+            out
+        };
+        assert_eq!(run(false), run(true));
     }
 
     #[test]

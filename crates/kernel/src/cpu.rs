@@ -9,6 +9,18 @@ use burn::backend::Backend;
 use burn::backend::tensor::FloatTensor;
 use std::borrow::Cow;
 
+/// Element-wise sum of per-task partial results (each `len` long), in task order: a reduction
+/// over rayon tasks of a fixed size that gives the same values whatever the thread count.
+pub fn sum_partials(partials: Vec<Vec<f32>>, len: usize) -> Vec<f32> {
+    let mut total = vec![0.0f32; len];
+    for p in partials {
+        for (t, v) in total.iter_mut().zip(p) {
+            *t += v;
+        }
+    }
+    total
+}
+
 /// A CPU backend whose float tensors are host buffers.
 pub trait CpuFloat: Backend {
     /// The row-major f32 values of `t`.

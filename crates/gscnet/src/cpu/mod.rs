@@ -40,13 +40,4 @@ pub(crate) const BLOCK: usize = 256;
 
 pub(crate) use prism_kernel::simd::has_avx2_fma as has_avx2;
 
-/// Element-wise sum of per-block partial gradients, in block order (deterministic).
-pub(crate) fn sum_partials(partials: Vec<Vec<f32>>, len: usize) -> Vec<f32> {
-    let mut total = vec![0.0f32; len];
-    for p in partials {
-        for (t, v) in total.iter_mut().zip(p) {
-            *t += v;
-        }
-    }
-    total
-}
+pub(crate) use prism_kernel::cpu::sum_partials;

@@ -155,10 +155,10 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
             }
             let samples = c.rays_per_batch.saturating_mul(c.samples_per_ray);
             // On the CPU the MLP is one fused op whose activations live per 512-point task: a
-            // sample holds its point, its output, and its encoding three times (the encoder's
-            // output, the op's copy, the gradient); measured: 146 MB peak at 64³ where two
-            // copies estimated 117. On wgpu the MLP is composed of tensor ops, every layer's
-            // activations kept for the backward.
+            // sample holds its point, its output, and three encoding-sized buffers (the
+            // encodings and their gradient are two; the third is measured: at 64³ a run peaks at
+            // 146 MB where two estimated 117). On wgpu the MLP is composed of tensor ops, every
+            // layer's activations kept for the backward.
             let per_sample = match c.device {
                 DeviceChoice::Cpu => 4 * (3 * h.levels * h.features + 8),
                 DeviceChoice::Wgpu => 8 * (c.field.width * c.field.layers + h.levels * h.features),

@@ -25,28 +25,23 @@ pub struct Ratio {
     pub peak: Option<f64>,
 }
 
-/// The ratios of every point both binaries measured.
-pub fn ratios(pairs: &[(&Measured, &Measured)]) -> Vec<Ratio> {
-    pairs
-        .iter()
-        .map(|(new, old)| {
-            let before: BTreeMap<String, f64> = series_times(old).into_iter().collect();
-            let time = series_times(new)
-                .into_iter()
-                .filter_map(|(s, t)| before.get(&s).map(|&b| (s, t / b)))
-                .collect();
-            let peak = match (new.peak_rss_bytes, old.peak_rss_bytes) {
-                (Some(n), Some(o)) if o > 0 => Some(n as f64 / o as f64),
-                _ => None,
-            };
-            Ratio {
-                point: new.point,
-                method: new.method.name(),
-                time,
-                peak,
-            }
-        })
-        .collect()
+/// One point's ratios, `new` (this binary) over `old` (the baseline).
+pub fn ratio(new: &Measured, old: &Measured) -> Ratio {
+    let before: BTreeMap<String, f64> = series_times(old).into_iter().collect();
+    let time = series_times(new)
+        .into_iter()
+        .filter_map(|(s, t)| before.get(&s).map(|&b| (s, t / b)))
+        .collect();
+    let peak = match (new.peak_rss_bytes, old.peak_rss_bytes) {
+        (Some(n), Some(o)) if o > 0 => Some(n as f64 / o as f64),
+        _ => None,
+    };
+    Ratio {
+        point: new.point,
+        method: new.method.name(),
+        time,
+        peak,
+    }
 }
 
 /// Per series (and `peak <method>`), the median ratio over the points: the headline figure.
@@ -120,7 +115,7 @@ mod tests {
         // R²-Gaussian: the median of its channels' stages, 0.2 → 0.1 s.
         let new_r = measured(Method::R2gs, &[0.1, 0.1, 0.3], 100);
         let old_r = measured(Method::R2gs, &[0.2, 0.2, 0.1], 100);
-        let r = ratios(&[(&new, &old), (&new_r, &old_r)]);
+        let r = [ratio(&new, &old), ratio(&new_r, &old_r)];
         assert!((r[0].time["4dsg stage 1"] - 0.5).abs() < 1e-12);
         assert!((r[0].time["4dsg stage 2"] - 1.5).abs() < 1e-12);
         assert!((r[0].peak.unwrap() - 1.1).abs() < 1e-12);

@@ -226,7 +226,8 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
     let scenes = tempfile::tempdir()?;
     let mut simulated: Vec<Point> = Vec::new();
     let mut results: Vec<(Point, Method, Result<Measured, String>)> = Vec::new();
-    let mut previous: Vec<Result<Measured, String>> = Vec::new();
+    // Against `--baseline`: each point's ratios, and how many points the baseline failed.
+    let (mut ratios, mut lost) = (Vec::new(), 0);
     for (i, &(p, m)) in plan.iter().enumerate() {
         let key = Point { gaussians: 0, ..p };
         let dir = scenes.path().join(format!(
@@ -256,17 +257,23 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
             }
         );
         if let Some(b) = &a.baseline {
-            let old = measure_apart(b, &a, &dir, p, m);
-            if let (Ok(new), Ok(old)) = (&r, &old) {
-                let ratio = &baseline::ratios(&[(new, old)])[0];
-                let times: Vec<String> = ratio
-                    .time
-                    .iter()
-                    .map(|(s, v)| format!("{s} {v:.2}×"))
-                    .collect();
-                eprintln!("    against the baseline: {}", times.join(", "));
+            match (&r, measure_apart(b, &a, &dir, p, m)) {
+                (Ok(new), Ok(old)) => {
+                    let ratio = baseline::ratio(new, &old);
+                    let times: Vec<String> = ratio
+                        .time
+                        .iter()
+                        .map(|(s, v)| format!("{s} {v:.2}×"))
+                        .collect();
+                    eprintln!("    against the baseline: {}", times.join(", "));
+                    ratios.push(ratio);
+                }
+                (_, Err(e)) => {
+                    eprintln!("    the baseline failed: {e}");
+                    lost += 1;
+                }
+                (Err(_), Ok(_)) => {}
             }
-            previous.push(old);
         }
         results.push((p, m, r));
     }
@@ -288,12 +295,6 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
             })
         })
         .collect();
-    let pairs: Vec<(&Measured, &Measured)> = results
-        .iter()
-        .zip(&previous)
-        .filter_map(|(r, old)| Some((r.2.as_ref().ok()?, old.as_ref().ok()?)))
-        .collect();
-    let ratios = baseline::ratios(&pairs);
     let regressions = baseline::regressions(&ratios);
     let mut summary = json!({
         "base": base,
@@ -345,7 +346,6 @@ pub fn run(a: ScalingArgs) -> anyhow::Result<()> {
         plan.len(),
         json_path.display()
     );
-    let lost = previous.iter().filter(|r| r.is_err()).count();
     anyhow::ensure!(
         lost == 0,
         "the baseline failed {lost} of {} measurements (is it a prism with `bench scaling`?)",
