@@ -80,7 +80,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         None => "no references".into(),
     };
-    let scan = config.angles_rad(base)?.len();
+    let scan = config.scan_geometry(base)?.0.views();
     eprintln!(
         "{}: {} channels, {} training + {} test views of {scan} ({references}) → {}",
         scene.name,

@@ -156,7 +156,74 @@ pub fn geometry(beam: Beam, n: usize, det: usize, views: usize, offsets: bool) -
             offset: [0.3 * o, -0.25 * o, 0.2 * o],
         },
         angles_rad: Geometry::full_turn(views),
+        vectors: None,
     }
+}
+
+/// `g` with every view's pose disturbed as real scanners are, as per-view vectors: the source
+/// wobbling along z (cone; a parallel beam's rays tilting out of the plane, its detector kept
+/// across them), the detector turned
+/// within its plane (up to 2.3°) and tilted out of it (1.7° about its rows), and shifted along u and
+/// v. Deterministic in the view index; the angles are derived from the vectors.
+pub fn wobbled(g: &Geometry) -> Geometry {
+    let rotate = |a: [f64; 3], e: [f64; 3], phi: f64| {
+        // Rodrigues: a·cos φ + (e × a)·sin φ + e·(e·a)(1 − cos φ), |e| = 1.
+        let (s, c) = phi.sin_cos();
+        let ea = e[0] * a[0] + e[1] * a[1] + e[2] * a[2];
+        let x = [
+            e[1] * a[2] - e[2] * a[1],
+            e[2] * a[0] - e[0] * a[2],
+            e[0] * a[1] - e[1] * a[0],
+        ];
+        [0, 1, 2].map(|k| a[k] * c + x[k] * s + e[k] * ea * (1.0 - c))
+    };
+    let unit = |a: [f64; 3]| {
+        let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+        a.map(|x| x / n)
+    };
+    let vectors = g
+        .to_vectors()
+        .into_iter()
+        .enumerate()
+        .map(|(k, mut w)| {
+            let k = k as f64;
+            let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+            let less = |a: [f64; 3], e: [f64; 3]| {
+                let t = dot(a, e);
+                [0, 1, 2].map(|k| a[k] - t * e[k])
+            };
+            match g.beam {
+                Beam::Cone => w.source[2] += 3.0 * k.sin(),
+                Beam::Parallel => {
+                    // Tilted rays meet a detector across them (one tilted against the rays
+                    // would have skewed pixels across them, which vectors may not describe).
+                    w.source[2] += 0.03 * k.sin();
+                    let r = unit(w.source);
+                    w.u = less(w.u, r);
+                    w.v = less(less(w.v, r), unit(w.u));
+                }
+            }
+            let (eu, ev) = (unit(w.u), unit(w.v));
+            let normal = [
+                eu[1] * ev[2] - eu[2] * ev[1],
+                eu[2] * ev[0] - eu[0] * ev[2],
+                eu[0] * ev[1] - eu[1] * ev[0],
+            ];
+            let spin = 0.04 * (1.3 * k).cos();
+            w.u = rotate(w.u, normal, spin);
+            w.v = rotate(w.v, normal, spin);
+            let tilt = 0.03;
+            w.u = rotate(w.u, unit(w.v), tilt);
+            let (eu, ev) = (unit(w.u), unit(w.v));
+            w.detector = [0, 1, 2].map(|a| {
+                w.detector[a] + 0.7 * (2.0 * k).sin() * eu[a] + 0.4 * (0.7 * k).cos() * ev[a]
+            });
+            w
+        })
+        .collect();
+    let d = &g.detector;
+    Geometry::from_vectors(g.beam, d.rows, d.cols, g.volume.clone(), vectors, None)
+        .expect("a valid disturbed geometry")
 }
 
 /// Uniform random array in [−1, 1), seeded.

@@ -21,9 +21,8 @@ fn scene_shape(spec: &SceneSpec, overrides: &Overrides) -> prism_domain::Result<
     if spec.import {
         let c: ImportConfig = prism_domain::yaml::read_with(&spec.config, overrides)?;
         let base = spec.config.parent().unwrap_or(Path::new("."));
-        let angles = c.angles_rad(base)?;
-        let (train, _) = c.pick_views(angles.len())?;
-        let (g, _) = c.geometry(angles)?;
+        let (g, _) = c.scan_geometry(base)?;
+        let (train, _) = c.pick_views(g.views())?;
         let v = &g.volume;
         Ok(([v.nx, v.ny, v.nz], c.channels.len(), train.len()))
     } else {

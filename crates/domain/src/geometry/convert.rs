@@ -88,6 +88,7 @@ impl R2Scanner {
                 offset: self.offOrigin,
             },
             angles_rad,
+            vectors: None,
         };
         g.validate().map_err(|e| e.under("scanner"))?;
         Ok(g)
@@ -145,6 +146,7 @@ impl TigreGeometry {
                 offset: [self.offOrigin[2], self.offOrigin[1], self.offOrigin[0]],
             },
             angles_rad,
+            vectors: None,
         };
         g.validate()?;
         Ok(g)

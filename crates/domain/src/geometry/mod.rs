@@ -15,9 +15,11 @@
 //!   `offset + ((ix + ½ − nx/2)·dx, (iy + ½ − ny/2)·dy, (iz + ½ − nz/2)·dz)`.
 
 mod convert;
+mod vectors;
 
 pub use convert::{R2Scanner, TigreGeometry};
 pub use prism_camera::{Camera, Projection, Ray};
+pub use vectors::{PERPENDICULAR, ViewVectors};
 
 use crate::error::{ensure_finite as finite, ensure_positive as positive};
 use crate::{Error, Result};
@@ -171,7 +173,9 @@ impl VolumeGrid {
     }
 }
 
-/// A complete scan geometry: beam, distances, detector, volume grid and view angles.
+/// A complete scan geometry: beam, distances, detector, volume grid and view angles; with
+/// `vectors`, every view's pose is given explicitly ([`ViewVectors`]) and the circular fields
+/// are the nominal scan they describe ([`Geometry::from_vectors`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Geometry {
@@ -185,6 +189,10 @@ pub struct Geometry {
     pub volume: VolumeGrid,
     /// View angles θ, radians, one per view.
     pub angles_rad: Vec<f64>,
+    /// Per-view source, detector centre and pixel axes (ASTRA's `*_vec` rows), one per view:
+    /// when given, they place every view, and the fields above are nominal.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vectors: Option<Vec<ViewVectors>>,
 }
 
 impl Geometry {
@@ -211,6 +219,10 @@ impl Geometry {
     pub fn with_views(&self, views: &[usize]) -> Geometry {
         Geometry {
             angles_rad: views.iter().map(|&v| self.angles_rad[v]).collect(),
+            vectors: self
+                .vectors
+                .as_ref()
+                .map(|w| views.iter().map(|&v| w[v]).collect()),
             ..self.clone()
         }
     }
@@ -225,13 +237,30 @@ impl Geometry {
 
     /// Source position of view `view` (cone), or the centre of the rays' start plane (parallel).
     pub fn source(&self, view: usize) -> [f64; 3] {
+        if self.vectors.is_some() {
+            return self.camera(view).to_world([0.0; 3]);
+        }
         let th = self.angles_rad[view];
         [self.dso * th.cos(), self.dso * th.sin(), 0.0]
     }
 
-    /// The camera of view `view`.
+    /// The camera of view `view`: from its vectors if the geometry has them, else the circular
+    /// scan's at its angle.
     pub fn camera(&self, view: usize) -> Camera {
-        self.camera_at(self.angles_rad[view])
+        match &self.vectors {
+            Some(w) => {
+                let d = &self.detector;
+                w[view]
+                    .camera(self.beam, d.rows, d.cols, self.dso)
+                    .expect("vectors are checked with the geometry")
+            }
+            None => self.camera_at(self.angles_rad[view]),
+        }
+    }
+
+    /// Whether every view lies on the circular orbit of the nominal fields (no `vectors`).
+    pub fn is_circular(&self) -> bool {
+        self.vectors.is_none()
     }
 
     /// All views' cameras.
@@ -239,7 +268,7 @@ impl Geometry {
         (0..self.views()).map(|v| self.camera(v)).collect()
     }
 
-    /// The camera at an arbitrary angle θ (radians).
+    /// The camera at an arbitrary angle θ (radians) on the nominal circular orbit.
     pub fn camera_at(&self, theta: f64) -> Camera {
         let (s, c) = theta.sin_cos();
         let d = &self.detector;
@@ -309,6 +338,9 @@ impl Geometry {
             .map(|(a, b)| a.abs().max(b.abs()).powi(2))
             .sum::<f64>()
             .sqrt();
+        if let Some(w) = &self.vectors {
+            return self.validate_vectors(w);
+        }
         if self.beam == Beam::Cone && reach >= self.dso {
             return Err(Error::invalid(
                 "volume",

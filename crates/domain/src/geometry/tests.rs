@@ -15,6 +15,7 @@ fn cone() -> Geometry {
         },
         volume: VolumeGrid::cube(64, 2.0),
         angles_rad: Geometry::full_turn(8),
+        vectors: None,
     }
 }
 
@@ -180,4 +181,244 @@ fn yaml_round_trip() {
     let text = serde_yaml_ng::to_string(&g).unwrap();
     let back: Geometry = serde_yaml_ng::from_str(&text).unwrap();
     assert_eq!(g, back);
+}
+
+// ---- per-view vectors ----
+
+fn parallel() -> Geometry {
+    Geometry {
+        beam: Beam::Parallel,
+        ..cone()
+    }
+}
+
+/// A fan beam: the middle row of a cone beam over a one-voxel slice.
+fn fan() -> Geometry {
+    let mut g = cone();
+    g.detector.rows = 1;
+    g.detector.offset_v = 0.0;
+    g.volume.nz = 1;
+    g
+}
+
+fn cameras_close(a: &Camera, b: &Camera, tol: f64) -> Result<(), String> {
+    let pairs = [
+        (a.fx, b.fx),
+        (a.fy, b.fy),
+        (a.cx, b.cx),
+        (a.cy, b.cy),
+        (a.sdd, b.sdd),
+    ];
+    let mut worst: f64 = 0.0;
+    for (x, y) in pairs {
+        worst = worst.max((x - y).abs() / x.abs().max(1.0));
+    }
+    for k in 0..3 {
+        worst = worst.max((a.translation[k] - b.translation[k]).abs() / 1000.0);
+        for j in 0..3 {
+            worst = worst.max((a.rotation[k][j] - b.rotation[k][j]).abs());
+        }
+    }
+    if worst <= tol && a.projection == b.projection && (a.rows, a.cols) == (b.rows, b.cols) {
+        Ok(())
+    } else {
+        Err(format!("{a:?}\nvs\n{b:?}\n(worst {worst:e})"))
+    }
+}
+
+/// Pixel (r, c) at `d + (c + ½ − cols/2)·u + (r + ½ − rows/2)·v` (the module's convention).
+fn pixel_centre(w: &ViewVectors, rows: usize, cols: usize, c: f64, r: f64) -> [f64; 3] {
+    let (a, b) = (c + 0.5 - cols as f64 / 2.0, r + 0.5 - rows as f64 / 2.0);
+    [0, 1, 2].map(|k| w.detector[k] + a * w.u[k] + b * w.v[k])
+}
+
+#[test]
+fn circular_scans_convert_to_vectors_exactly() {
+    // Rounding only: the cameras agree to 1e-12 (relative; rotations absolute).
+    for g in [cone(), parallel(), fan()] {
+        let w = g.to_vectors();
+        let held = Geometry {
+            vectors: Some(w.clone()),
+            ..g.clone()
+        };
+        held.validate().unwrap();
+        for v in 0..g.views() {
+            cameras_close(&g.camera(v), &held.camera(v), 1e-12).unwrap();
+        }
+        // The nominal fields come back from the vectors alone.
+        let d = &g.detector;
+        let n = Geometry::from_vectors(g.beam, d.rows, d.cols, g.volume.clone(), w, None).unwrap();
+        for (a, b) in n.angles_rad.iter().zip(&g.angles_rad) {
+            assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+        }
+        assert!((n.detector.pitch_u - d.pitch_u).abs() < 1e-12);
+        assert!((n.detector.pitch_v - d.pitch_v).abs() < 1e-12);
+        if g.beam == Beam::Cone {
+            assert!((n.dso - g.dso).abs() < 1e-9 && (n.dsd - g.dsd).abs() < 1e-9);
+            for v in 0..g.views() {
+                cameras_close(&g.camera(v), &n.camera(v), 1e-12).unwrap();
+            }
+        }
+        // Parallel: another start plane, the same rays.
+        for v in 0..g.views() {
+            let (a, b) = (g.camera(v), n.camera(v));
+            for (c, r) in [(0.0, 0.0), (100.0, 0.0), (37.0, 0.0)] {
+                let (ra, rb) = (a.pixel_ray(c, r), b.pixel_ray(c, r));
+                let end = |x: &Ray| [0, 1, 2].map(|k| x.origin[k] + x.length * x.direction[k]);
+                assert!(close(end(&ra), end(&rb), 1e-9), "{ra:?} vs {rb:?}");
+                assert!(close(ra.direction, rb.direction, 1e-12));
+            }
+        }
+    }
+}
+
+#[test]
+fn cameras_follow_the_vectors_of_a_disturbed_scan() {
+    // Independent of the camera's construction: each pixel's ray ends on the pixel centre the
+    // vectors place, starts at the source (cone) or runs along the rays (parallel), and the
+    // pixel centre projects back to its (column, row).
+    for g in [cone(), parallel()] {
+        let g = crate::testing::wobbled(&g);
+        let (rows, cols) = (g.detector.rows, g.detector.cols);
+        for (v, wv) in g.vectors.iter().flatten().enumerate() {
+            let cam = g.camera(v);
+            for (c, r) in [(0.0, 0.0), (127.0, 95.0), (40.0, 71.0)] {
+                let p = pixel_centre(wv, rows, cols, c, r);
+                let ray = cam.pixel_ray(c, r);
+                let end = [0, 1, 2].map(|k| ray.origin[k] + ray.length * ray.direction[k]);
+                let uv = cam.project(p).unwrap();
+                assert!(
+                    (uv[0] - c).abs() < 1e-9 && (uv[1] - r).abs() < 1e-9,
+                    "{uv:?}"
+                );
+                match g.beam {
+                    Beam::Cone => {
+                        assert!(close(end, p, 1e-9), "{end:?} vs {p:?}");
+                        assert!(close(ray.origin, wv.source, 1e-9));
+                    }
+                    Beam::Parallel => {
+                        let n = wv.source.iter().map(|x| x * x).sum::<f64>().sqrt();
+                        assert!(close(ray.direction, wv.source.map(|x| x / n), 1e-12));
+                        // The pixel centre lies on the ray.
+                        let off = [0, 1, 2].map(|k| p[k] - ray.origin[k]);
+                        let t: f64 = (0..3).map(|k| off[k] * ray.direction[k]).sum();
+                        let foot = [0, 1, 2].map(|k| ray.origin[k] + t * ray.direction[k]);
+                        assert!(close(foot, p, 1e-9), "{foot:?} vs {p:?}");
+                    }
+                }
+            }
+        }
+        // A disturbed scan keeps its derived angles continuous and near the circular ones.
+        for (a, b) in g.angles_rad.iter().zip(&Geometry::full_turn(8)) {
+            assert!((a - b).abs() < 0.1, "{a} vs {b}");
+        }
+    }
+}
+
+#[test]
+fn bad_vectors_are_refused_naming_the_view_and_part() {
+    type Mutation = Box<dyn Fn(&mut Vec<ViewVectors>)>;
+    let rot = |a: [f64; 3], b: [f64; 3], deg: f64| {
+        // Turn `a` by `deg` towards `b` (both perpendicular, |a| kept).
+        let (s, c) = deg.to_radians().sin_cos();
+        let nb = b.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let na = a.iter().map(|x| x * x).sum::<f64>().sqrt();
+        [0, 1, 2].map(|k| a[k] * c + b[k] / nb * na * s)
+    };
+    let cases: Vec<(Beam, Mutation, &str, &str)> = vec![
+        (
+            Beam::Cone,
+            Box::new(move |w| w[2].v = rot(w[2].v, w[2].u, 1.0)),
+            "vectors[2].v",
+            "perpendicular",
+        ),
+        (
+            Beam::Cone,
+            Box::new(|w| w[0].u = [0.0; 3]),
+            "vectors[0].u",
+            "zero",
+        ),
+        (
+            Beam::Cone,
+            Box::new(|w| w[5].u = w[5].u.map(|x| -x)),
+            "vectors[5].u",
+            "mirrored",
+        ),
+        (
+            Beam::Cone,
+            Box::new(|w| w[1].detector[0] = f64::NAN),
+            "vectors[1].detector[0]",
+            "finite",
+        ),
+        (
+            Beam::Cone,
+            Box::new(|w| w[3].source = [0.0, 0.0, 10.0]),
+            "vectors[3].source",
+            "source",
+        ),
+        (
+            Beam::Cone,
+            Box::new(|w| w[4].detector = [0.0, 0.0, 0.0]),
+            "vectors[4].detector",
+            "cuts the volume",
+        ),
+        (
+            Beam::Parallel,
+            Box::new(|w| w[6].u = w[6].source),
+            "vectors[6].u",
+            "along the rays",
+        ),
+        (
+            Beam::Parallel,
+            Box::new(|w| w[7].source = [0.0; 3]),
+            "vectors[7].source",
+            "zero",
+        ),
+    ];
+    for (beam, mutate, field, words) in cases {
+        let g = Geometry { beam, ..cone() };
+        let mut w = g.to_vectors();
+        mutate(&mut w);
+        let held = Geometry {
+            vectors: Some(w.clone()),
+            ..g.clone()
+        };
+        let d = &g.detector;
+        for err in [
+            held.validate().unwrap_err(),
+            Geometry::from_vectors(beam, d.rows, d.cols, g.volume.clone(), w, None).unwrap_err(),
+        ] {
+            let err = err.to_string();
+            assert!(
+                err.contains(&format!("`{field}`")) && err.contains(words),
+                "{err} should name {field} and say {words}"
+            );
+        }
+    }
+    // One row of vectors per angle.
+    let mut g = cone();
+    g.vectors = Some(g.to_vectors());
+    g.angles_rad.pop();
+    assert!(g.validate().unwrap_err().to_string().contains("`vectors`"));
+}
+
+#[test]
+fn vectors_are_stored_as_astra_rows() {
+    let g = crate::testing::wobbled(&cone());
+    let text = serde_yaml_ng::to_string(&g).unwrap();
+    let back: Geometry = serde_yaml_ng::from_str(&text).unwrap();
+    assert_eq!(g, back);
+    // A row is (source, detector centre, u, v).
+    let w = g.vectors.as_ref().unwrap()[3];
+    let row: [f64; 12] = w.into();
+    assert_eq!(ViewVectors::from(row), w);
+    assert_eq!(row[6..9], w.u);
+    let value: serde_yaml_ng::Value = serde_yaml_ng::from_str(&text).unwrap();
+    assert_eq!(value["vectors"][3].as_sequence().unwrap().len(), 12);
+    // A circular geometry writes no `vectors` key (scenes from before read unchanged).
+    assert!(
+        !serde_yaml_ng::to_string(&cone())
+            .unwrap()
+            .contains("vectors")
+    );
 }

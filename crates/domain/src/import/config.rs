@@ -1,7 +1,7 @@
 //! The import config (`prism import <import.yaml>`): where the measured images are, what they
 //! are, the scanner geometry and the view selection. See `docs/import.md` for the format.
 
-use crate::geometry::{Beam, Detector, Geometry, TigreGeometry, VolumeGrid};
+use crate::geometry::{Beam, Detector, Geometry, TigreGeometry, ViewVectors, VolumeGrid};
 use crate::scene::SpectralCoordinate;
 use crate::{Error, Result};
 use serde::Deserialize;
@@ -16,7 +16,9 @@ pub struct ImportConfig {
     /// The scanner without its angles: Prism's own fields (`docs/geometry.md`) or TIGRE's.
     #[serde(with = "serde_yaml_ng::with::singleton_map")]
     pub geometry: GeometrySource,
-    /// The angles of the full scan, one per image of a full stack.
+    /// The angles of the full scan, one per image of a full stack (optional with `vectors`,
+    /// which imply them).
+    #[serde(default)]
     pub angles: AngleSpec,
     /// The rotation axis: `given` (the geometry's `offset_u`, the default), or estimated from
     /// the projections and written into the scene's geometry: `auto`, `opposing`, `sharpness`,
@@ -67,6 +69,97 @@ pub enum GeometrySource {
     Tigre(TigreGeometry),
     /// A 2-D fan beam on a flat detector line: one slice (`docs/geometry.md`).
     Fan(FanGeometry),
+    /// Every view's pose given as a row of vectors (ASTRA's `cone_vec`, `parallel3d_vec` or
+    /// `fanflat_vec`).
+    Vectors(VectorGeometry),
+}
+
+/// A scan given by per-view vectors: `file` holds one row per view of the full scan, in ASTRA's
+/// layout (`docs/geometry.md`, "Per-view vectors"): 12 numbers `(source or ray, detector
+/// centre, u, v)` for `cone` and `parallel`, 6 numbers `(source, detector centre, u)` in the
+/// plane z = 0 for `fan` (stored as the middle row of a cone beam, as [`FanGeometry`]).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VectorGeometry {
+    pub beam: VectorBeam,
+    /// `.npy` (`[views, 12]` or `[views, 6]`, f64 or f32) or text (one row per line, numbers
+    /// separated by spaces or commas, `#` comments); relative to the import config.
+    pub file: PathBuf,
+    /// Detector rows (a fan has one) and columns.
+    pub rows: Option<usize>,
+    pub cols: usize,
+    /// The volume grid, mm. A fan's has `nz = 1` and `dz` the slice's thickness (no ray leaves
+    /// the plane z = 0; the row height at the axis is the usual choice).
+    pub volume: VolumeGrid,
+}
+
+/// The beam of a [`VectorGeometry`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum VectorBeam {
+    Cone,
+    Parallel,
+    Fan,
+}
+
+impl VectorGeometry {
+    /// Numbers in a row of the file.
+    pub fn row_len(&self) -> usize {
+        match self.beam {
+            VectorBeam::Fan => 6,
+            _ => 12,
+        }
+    }
+
+    /// The geometry of `rows` (read from `file`), with the config's `angles` if it gives any.
+    pub fn to_geometry(&self, rows: &[Vec<f64>], angles: Option<Vec<f64>>) -> Result<Geometry> {
+        let width = self.row_len();
+        if let Some(k) = rows.iter().position(|r| r.len() != width) {
+            return Err(Error::invalid(
+                format!("file row {k}"),
+                format!(
+                    "holds {} numbers; a {:?} row has {width}",
+                    rows[k].len(),
+                    self.beam
+                ),
+            ));
+        }
+        let (beam, det_rows) = match self.beam {
+            VectorBeam::Cone => (Beam::Cone, self.rows),
+            VectorBeam::Parallel => (Beam::Parallel, self.rows),
+            VectorBeam::Fan => {
+                if self.rows.is_some_and(|r| r != 1) || self.volume.nz != 1 {
+                    return Err(Error::invalid(
+                        "volume.nz",
+                        "a fan beam reconstructs one slice: one detector row, nz = 1",
+                    ));
+                }
+                (Beam::Cone, Some(1))
+            }
+        };
+        let det_rows =
+            det_rows.ok_or_else(|| Error::invalid("rows", "give the detector's row count"))?;
+        let vectors: Vec<ViewVectors> = rows
+            .iter()
+            .map(|r| match self.beam {
+                VectorBeam::Fan => {
+                    let row: [f64; 6] = r[..].try_into().expect("checked width");
+                    // The row as high as a column is wide.
+                    let pitch = (row[4] * row[4] + row[5] * row[5]).sqrt();
+                    ViewVectors::from_fan(row, pitch)
+                }
+                _ => ViewVectors::from(<[f64; 12]>::try_from(&r[..]).expect("checked width")),
+            })
+            .collect();
+        Geometry::from_vectors(
+            beam,
+            det_rows,
+            self.cols,
+            self.volume.clone(),
+            vectors,
+            angles,
+        )
+    }
 }
 
 /// A fan beam on a flat detector line, reconstructing one slice: exactly the middle row of a
@@ -120,6 +213,7 @@ impl FanGeometry {
                 offset: [self.offset[0], self.offset[1], 0.0],
             },
             angles_rad,
+            vectors: None,
         };
         // Errors name the fan's own fields, not the cone fields they became.
         g.validate().map_err(|e| match e {
@@ -265,8 +359,28 @@ pub enum ReferenceKind {
 }
 
 impl ImportConfig {
-    /// The geometry with the full scan's angles (radians), and whether stored rows run bottom-up.
-    pub fn geometry(&self, angles_rad: Vec<f64>) -> Result<(Geometry, bool)> {
+    /// The geometry with the full scan's angles (radians; `None` when the config gives none,
+    /// which only vectors allow), the vector rows when the geometry is given by vectors, and
+    /// whether stored rows run bottom-up.
+    pub fn geometry(
+        &self,
+        angles_rad: Option<Vec<f64>>,
+        vector_rows: Option<&[Vec<f64>]>,
+    ) -> Result<(Geometry, bool)> {
+        if let GeometrySource::Vectors(v) = &self.geometry {
+            let rows =
+                vector_rows.ok_or_else(|| Error::invalid("geometry.vectors.file", "not read"))?;
+            let g = v
+                .to_geometry(rows, angles_rad)
+                .map_err(|e| e.under("geometry.vectors"))?;
+            return Ok((g, self.rows_bottom_up));
+        }
+        let angles_rad = angles_rad.ok_or_else(|| {
+            Error::invalid(
+                "angles",
+                "give exactly one of `count` (evenly spaced), `deg` (a list) or `file`",
+            )
+        })?;
         match &self.geometry {
             GeometrySource::Prism {
                 beam,
@@ -282,6 +396,7 @@ impl ImportConfig {
                     detector: detector.clone(),
                     volume: volume.clone(),
                     angles_rad,
+                    vectors: None,
                 };
                 g.validate().map_err(|e| e.under("geometry.prism"))?;
                 Ok((g, self.rows_bottom_up))
@@ -296,6 +411,7 @@ impl ImportConfig {
                     .map_err(|e| e.under("geometry.fan"))?,
                 self.rows_bottom_up,
             )),
+            GeometrySource::Vectors(_) => unreachable!("handled above"),
         }
     }
 
@@ -361,6 +477,11 @@ fn check_view_count(n: usize) -> Result<()> {
 }
 
 impl AngleSpec {
+    /// Whether the config gives angles at all (`count`, `deg` or `file`).
+    pub fn is_given(&self) -> bool {
+        self.count.is_some() || self.deg.is_some() || self.file.is_some()
+    }
+
     /// The angles in radians (`read` reads a file of values; paths are the caller's concern).
     pub fn resolve(&self, read: impl Fn(&std::path::Path) -> Result<Vec<f64>>) -> Result<Vec<f64>> {
         let given = [

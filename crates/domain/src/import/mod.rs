@@ -23,6 +23,7 @@ pub use crate::scene::{AxisEstimate, AxisMethod};
 pub use axis::AxisConfig;
 pub use config::{ImportConfig, ReferenceKind};
 
+use crate::geometry::Geometry;
 use crate::indices::IndexFault;
 use crate::memory::{self, Footprint};
 use crate::scene::{Channel, Provenance, Scene, Split, normalise_tau};
@@ -43,8 +44,7 @@ pub struct FullScan {
 /// Read and convert every channel of `config` (paths relative to `base`); `config_text` is kept
 /// as the scene's provenance.
 pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result<FullScan> {
-    let angles = config.angles_rad(base)?;
-    let (geometry, bottom_up) = config.geometry(angles)?;
+    let (geometry, bottom_up) = config.scan_geometry(base)?;
     let n_views = geometry.views();
     let (rows, cols) = (geometry.detector.rows, geometry.detector.cols);
     if config.channels.is_empty() {
@@ -228,8 +228,7 @@ pub fn line_integrals(
 /// as f32, with full-view FDK references one channel's filtered projections and volume, the
 /// references while stacked, and the scene of the selected views with its copy of them.
 pub fn footprint(config: &ImportConfig, base: &Path) -> Result<Footprint> {
-    let angles = config.angles_rad(base)?;
-    let (g, _) = config.geometry(angles)?;
+    let (g, _) = config.scan_geometry(base)?;
     let (views, rows, cols) = (g.views(), g.detector.rows, g.detector.cols);
     let m = config.channels.len();
     let pixels = memory::elements("geometry.detector", &[views, rows, cols])?;
@@ -322,6 +321,76 @@ impl ImportConfig {
         self.angles
             .resolve(|p| read_angles(&base.join(p), self.angles.dataset.as_deref()))
     }
+
+    /// The full scan's geometry (files relative to `base`: angles, vectors) and whether stored
+    /// rows run bottom-up.
+    pub fn scan_geometry(&self, base: &Path) -> Result<(Geometry, bool)> {
+        let vectors = match &self.geometry {
+            config::GeometrySource::Vectors(v) => Some(
+                read_vector_rows(&base.join(&v.file), v.row_len())
+                    .map_err(|e| e.under("geometry.vectors"))?,
+            ),
+            _ => None,
+        };
+        let angles = match (&vectors, self.angles.is_given()) {
+            (Some(_), false) => None,
+            _ => Some(self.angles_rad(base)?),
+        };
+        self.geometry(angles, vectors.as_deref())
+    }
+}
+
+/// The rows of a vector file: a `[views, width]` `.npy` (f64 or f32) or text with one row per
+/// line (numbers separated by spaces or commas, `#` comments).
+fn read_vector_rows(path: &Path, width: usize) -> Result<Vec<Vec<f64>>> {
+    if path.extension().is_some_and(|e| e == "npy") {
+        let a = match crate::scene::npy::read_array::<f64, ndarray::Ix2>(path, "file") {
+            Ok(a) => a,
+            Err(_) => crate::scene::npy::read_array::<f32, ndarray::Ix2>(path, "file")
+                .map_err(|_| {
+                    Error::field(
+                        path,
+                        "file",
+                        format!("expected a [views, {width}] f64 or f32 array"),
+                    )
+                })?
+                .mapv(f64::from),
+        };
+        if a.ncols() != width {
+            return Err(Error::field(
+                path,
+                "file",
+                format!("has {} columns; a row of vectors has {width}", a.ncols()),
+            ));
+        }
+        return Ok(a.rows().into_iter().map(|r| r.to_vec()).collect());
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut rows = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.split('#').next().unwrap_or("").trim();
+        if line.is_empty() {
+            continue;
+        }
+        let row = line
+            .split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|t| !t.is_empty())
+            .map(|t| t.parse::<f64>())
+            .collect::<std::result::Result<Vec<f64>, _>>()
+            .map_err(|e| Error::field(path, format!("line {}", i + 1), e.to_string()))?;
+        if row.len() != width {
+            return Err(Error::field(
+                path,
+                format!("line {}", i + 1),
+                format!("holds {} numbers; a row of vectors has {width}", row.len()),
+            ));
+        }
+        rows.push(row);
+    }
+    if rows.is_empty() {
+        return Err(Error::field(path, "file", "holds no row of vectors"));
+    }
+    Ok(rows)
 }
 
 impl Scene {

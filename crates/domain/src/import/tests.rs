@@ -300,12 +300,147 @@ fn fan_beam_is_one_cone_row_through_one_slice_and_projects_its_line_integrals() 
         "name: t\ngeometry: {fan: {dso: 100.0, dsd: 90.0, cols: 8, pitch: 1.0, nx: 4, ny: 4, \
          dx: 1.0, dy: 1.0}}\nangles: {count: 4}\nchannels: []\n",
     );
-    let e = bad.geometry(vec![0.0]).unwrap_err().to_string();
+    let e = bad.geometry(Some(vec![0.0]), None).unwrap_err().to_string();
     assert!(e.contains("geometry.fan.dsd"), "{e}");
     let bad = config(
         "name: t\ngeometry: {fan: {dso: 100.0, dsd: 190.0, cols: 8, pitch: -1.0, nx: 4, ny: 4, \
          dx: 1.0, dy: 1.0}}\nangles: {count: 4}\nchannels: []\n",
     );
-    let e = bad.geometry(vec![0.0]).unwrap_err().to_string();
+    let e = bad.geometry(Some(vec![0.0]), None).unwrap_err().to_string();
     assert!(e.contains("geometry.fan.pitch"), "{e}");
+}
+
+#[test]
+fn per_view_vectors_import_from_npy_or_text_rows() {
+    use crate::geometry::Beam;
+    use crate::projector::Joseph;
+    use crate::testing::{geometry, random, wobbled};
+    let dir = tempfile::tempdir().unwrap();
+    let g = wobbled(&geometry(Beam::Cone, 8, 12, 5, true));
+    let rows: Vec<[f64; 12]> = g.to_vectors().into_iter().map(Into::into).collect();
+    let flat: Vec<f64> = rows.iter().flatten().copied().collect();
+    let a = Array2::from_shape_vec((rows.len(), 12), flat).unwrap();
+    ndarray_npy::write_npy(dir.path().join("vec.npy"), &a).unwrap();
+    ndarray_npy::write_npy(dir.path().join("vec32.npy"), &a.mapv(|x| x as f32)).unwrap();
+    // Text: full precision (`{:?}` round-trips f64), commas or spaces, comments.
+    let text_rows: String = rows
+        .iter()
+        .map(|r| {
+            let cells: Vec<String> = r.iter().map(|x| format!("{x:?}")).collect();
+            format!("{}  # a view\n", cells.join(", "))
+        })
+        .collect();
+    std::fs::write(
+        dir.path().join("vec.txt"),
+        format!("# sx sy sz ...\n{text_rows}"),
+    )
+    .unwrap();
+    let p = random([5, 12, 12], 1).mapv(f32::abs);
+    ndarray_npy::write_npy(dir.path().join("li.npy"), &p).unwrap();
+    let yaml = |file: &str, extra: &str| {
+        format!(
+            "name: t\ngeometry: {{vectors: {{beam: cone, file: {file}, rows: 12, cols: 12, \
+             volume: {{nx: 8, ny: 8, nz: 8, dx: 1.0, dy: 1.0, dz: 1.0, \
+             offset: [0.3, -0.25, 0.2]}}}}}}\n{extra}channels:\n  \
+             - {{label: a, coordinate: {{kind: tube_voltage, kvp: 80}}, \
+             line_integrals: {{path: li.npy}}}}\n"
+        )
+    };
+    for file in ["vec.npy", "vec.txt"] {
+        let text = yaml(file, "");
+        let s = assemble(&config(&text), dir.path(), &text).unwrap().scene;
+        // Exactly the vectors written; the angles derived from them.
+        assert_eq!(s.geometry.vectors, g.vectors, "{file}");
+        for (x, y) in s.geometry.angles_rad.iter().zip(&g.angles_rad) {
+            assert!((x - y).abs() < 1e-12);
+        }
+    }
+    // f32 rows: the same scan to f32 rounding (the perpendicularity check passes).
+    let text = yaml("vec32.npy", "");
+    let s = assemble(&config(&text), dir.path(), &text).unwrap().scene;
+    let fp = |g: &crate::geometry::Geometry| {
+        let x = random(g.volume.shape_zyx(), 2);
+        Joseph::new(g).unwrap().forward(x.view()).unwrap()
+    };
+    assert!(crate::testing::rel_l2(&fp(&s.geometry), &fp(&g)) < 1e-5);
+    // Angles, if the config gives them, must be one per row.
+    let text = yaml("vec.npy", "angles: {count: 4}\n");
+    let e = assemble(&config(&text), dir.path(), &text)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("geometry.vectors.angles") && e.contains("4 angles for 5 views"),
+        "{e}"
+    );
+    // Bad rows name the file and line.
+    std::fs::write(dir.path().join("short.txt"), "1 2 3\n").unwrap();
+    let text = yaml("short.txt", "");
+    let e = assemble(&config(&text), dir.path(), &text)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("short.txt") && e.contains("line 1") && e.contains("12"),
+        "{e}"
+    );
+}
+
+#[test]
+fn fan_vectors_are_the_fan_geometry_they_describe() {
+    // A circular fan written as ASTRA `fanflat_vec` rows (source, detector centre, u in the
+    // plane) imports as the same scan as the `fan:` fields: the same line integrals.
+    use crate::projector::Joseph;
+    use crate::testing::{random, rel_l2};
+    let f = FanGeometry {
+        dso: 120.0,
+        dsd: 200.0,
+        cols: 40,
+        pitch: 0.9,
+        offset_u: 1.3,
+        nx: 16,
+        ny: 16,
+        dx: 1.5,
+        dy: 1.5,
+        offset: [0.5, 0.0],
+    };
+    let angles: Vec<f64> = (0..7).map(|i| 0.3 + i as f64 * 0.9).collect();
+    let g = f.to_geometry(angles).unwrap();
+    let rows: String = g
+        .to_vectors()
+        .iter()
+        .map(|w| {
+            let r = [
+                w.source[0],
+                w.source[1],
+                w.detector[0],
+                w.detector[1],
+                w.u[0],
+                w.u[1],
+            ];
+            r.map(|x| format!("{x:?}")).join(" ") + "\n"
+        })
+        .collect();
+    let v = VectorGeometry {
+        beam: VectorBeam::Fan,
+        file: "fan.txt".into(),
+        rows: None,
+        cols: 40,
+        volume: g.volume.clone(),
+    };
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("fan.txt"), rows).unwrap();
+    let read = super::read_vector_rows(&dir.path().join("fan.txt"), 6).unwrap();
+    let h = v.to_geometry(&read, None).unwrap();
+    let x = random(g.volume.shape_zyx(), 3);
+    let fp = |g: &crate::geometry::Geometry| Joseph::new(g).unwrap().forward(x.view()).unwrap();
+    assert!(rel_l2(&fp(&h), &fp(&g)) < 1e-6);
+    // A fan reconstructs one slice.
+    let thick = VectorGeometry {
+        volume: crate::geometry::VolumeGrid {
+            nz: 2,
+            ..g.volume.clone()
+        },
+        ..v
+    };
+    let e = thick.to_geometry(&read, None).unwrap_err().to_string();
+    assert!(e.contains("volume.nz"), "{e}");
 }

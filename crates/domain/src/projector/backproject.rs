@@ -3,8 +3,8 @@
 //! Every voxel centre is projected onto each view's detector with the view's [`Camera`], the
 //! projection is sampled bilinearly at that point (pixel centres at integer coordinates, zero
 //! outside the detector), weighted and accumulated. For cone beam the weight is the FDK distance
-//! weight `1/U²` with `U = (DSO − ⟨x, ŝ⟩)/DSO` (the voxel's depth along the central ray over DSO);
-//! for parallel beam the weight is 1. This is *not* the adjoint of the Joseph projector (use
+//! weight `1/U²` with `U = (DSO − ⟨x, ŝ⟩)/DSO` (the voxel's depth along the view axis over the
+//! isocentre's, the view's own for per-view vectors); for parallel beam the weight is 1. This is *not* the adjoint of the Joseph projector (use
 //! [`super::Joseph::adjoint`] for that); it is the backprojection of the FDK formula.
 //!
 //! The rotation axis is z, so along a voxel column in z the detector column, the depth and the
@@ -13,7 +13,9 @@
 //! column reaches (contiguous, since each view is stored column-major with a zero border); each
 //! voxel then costs one linear interpolation in `L` and a multiply-add. The volume is accumulated
 //! z-fastest, in parallel over blocks of y, and reordered to `[z][y][x]` at the end. The inner loops are
-//! compiled twice, for the baseline target and for AVX2+FMA, chosen at run time.
+//! compiled twice, for the baseline target and for AVX2+FMA, chosen at run time. A view whose
+//! columns do not run along z (per-view vectors with a tilted detector or orbit) projects and
+//! samples each voxel on its own ([`Column::general`]).
 
 use super::joseph::{floorish, from_yxz, has_avx2_fma};
 use crate::geometry::{Beam, Camera, Geometry, Projection};
@@ -60,7 +62,6 @@ fn backproject_with(
     let cams: Vec<Camera> = views.iter().map(|&v| geometry.camera(v)).collect();
     let g = &geometry.volume;
     let cone = geometry.beam == Beam::Cone;
-    let dso = geometry.dso as f32;
     let (rows, cols) = (d.rows, d.cols);
     // Each view column-major with a zero border: `img[(c + 1)·(rows + 2) + r + 1]` = p[r][c].
     let padded = (rows + 2) * (cols + 2);
@@ -83,17 +84,21 @@ fn backproject_with(
         .for_each_init(Vec::new, |line, (b, block)| {
             for (k, cam) in cams.iter().enumerate() {
                 let img = &imgs[k * padded..(k + 1) * padded];
-                // The rotation axis is z (docs/geometry.md): moving a voxel along z moves it along
-                // y_c only, so u, the depth and the 1/U² weight are constant along a z-column and
-                // the detector row is affine in z.
-                debug_assert!(cam.rotation[0][2] == 0.0 && cam.rotation[2][2] == 0.0);
-                let dyc = (cam.rotation[1][2] * g.dz) as f32;
+                // The isocentre's depth along the view axis.
+                let iso = cam.translation[2] as f32;
                 let w = scale[k] as f32;
+                // On a circular orbit the rotation axis is z (docs/geometry.md): moving a voxel
+                // along z moves it along y_c only, so u, the depth and the 1/U² weight are
+                // constant along a z-column and the detector row is affine in z.
+                let vertical = cam.rotation[0][2] == 0.0 && cam.rotation[2][2] == 0.0;
+                let dyc = (cam.rotation[1][2] * g.dz) as f32;
                 for (dy, slab) in block.chunks_mut(nx * nz).enumerate() {
                     let iy = b * YB + dy;
                     for (ix, out) in slab.chunks_mut(nz).enumerate() {
                         let p = cam.to_camera(g.voxel_centre(ix, iy, 0));
-                        if let Some(column) = Column::new(cam, p, dyc, cone, dso, nz) {
+                        if !vertical {
+                            Column::general(cam, p, g.dz, cone, iso, img, rows + 2, w, out);
+                        } else if let Some(column) = Column::new(cam, p, dyc, cone, iso, nz) {
                             column.accumulate(img, rows + 2, w, line, out, simd);
                         }
                     }
@@ -117,8 +122,9 @@ struct Column {
 }
 
 impl Column {
-    /// `None` when the column is behind the source or misses the detector's bilinear footprint.
-    fn new(cam: &Camera, p: [f64; 3], dyc: f32, cone: bool, dso: f32, nz: usize) -> Option<Column> {
+    /// `None` when the column is behind the source or misses the detector's bilinear footprint;
+    /// `iso` is the isocentre's depth along the view axis (DSO on a circular orbit).
+    fn new(cam: &Camera, p: [f64; 3], dyc: f32, cone: bool, iso: f32, nz: usize) -> Option<Column> {
         debug_assert!(cone == (cam.projection == Projection::Cone));
         let (fx, fy, cx, cy) = (cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32);
         let c = p.map(|x| x as f32);
@@ -127,7 +133,7 @@ impl Column {
                 return None;
             }
             let inv = 1.0 / c[2];
-            let uw = dso * inv;
+            let uw = iso * inv;
             (
                 fx * c[0] * inv + cx,
                 fy * c[1] * inv + cy,
@@ -168,6 +174,51 @@ impl Column {
             j1: j1 as usize,
             weight,
         })
+    }
+
+    /// A column along z for a camera whose columns do not run along z: every voxel `j` (camera
+    /// position `p + j·dz·ẑ_c`) projected, weighted and sampled bilinearly on its own, into
+    /// `out[j]`; `img` is padded as in [`Column::accumulate`].
+    #[allow(clippy::too_many_arguments)]
+    fn general(
+        cam: &Camera,
+        p: [f64; 3],
+        dz: f64,
+        cone: bool,
+        iso: f32,
+        img: &[f32],
+        rp: usize,
+        scale: f32,
+        out: &mut [f32],
+    ) {
+        let step = [0, 1, 2].map(|a| cam.rotation[a][2] * dz);
+        let cp = img.len() / rp;
+        let (fx, fy, cx, cy) = (cam.fx as f32, cam.fy as f32, cam.cx as f32, cam.cy as f32);
+        for (j, o) in out.iter_mut().enumerate() {
+            let c = [0, 1, 2].map(|a| (p[a] + j as f64 * step[a]) as f32);
+            let (u, v, weight) = if cone {
+                if c[2].is_nan() || c[2] <= 0.0 {
+                    continue;
+                }
+                let inv = 1.0 / c[2];
+                let uw = iso * inv;
+                (fx * c[0] * inv + cx, fy * c[1] * inv + cy, uw * uw)
+            } else {
+                (fx * c[0] + cx, fy * c[1] + cy, 1.0)
+            };
+            // Padded coordinates; outside (−1, cols) × (−1, rows) every neighbour is zero.
+            let (uu, vv) = (u + 1.0, v + 1.0);
+            if !(uu > 0.0 && uu < (cp - 1) as f32 && vv > 0.0 && vv < (rp - 1) as f32) {
+                continue;
+            }
+            let (iu, iv) = (floorish(uu) as usize, floorish(vv) as usize);
+            let (iu, iv) = (iu.min(cp - 2), iv.min(rp - 2));
+            let (gu, gv) = (uu - iu as f32, vv - iv as f32);
+            let at = |a: usize, b: usize| img[a * rp + b];
+            let top = at(iu, iv) + gu * (at(iu + 1, iv) - at(iu, iv));
+            let bottom = at(iu, iv + 1) + gu * (at(iu + 1, iv + 1) - at(iu, iv + 1));
+            *o += scale * weight * (top + gv * (bottom - top));
+        }
     }
 
     /// Add `scale · weight · bilinear(img, u, v_j)` to `out[j]` for the column's voxels; `img`
@@ -329,6 +380,7 @@ mod tests {
                 ..VolumeGrid::cube(16, 1.0)
             },
             angles_rad: Geometry::full_turn(5),
+            vectors: None,
         }
     }
 
@@ -337,8 +389,16 @@ mod tests {
     /// `Camera::project` directly.
     #[test]
     fn matches_direct_projection_of_voxel_centres() {
-        for beam in [Beam::Cone, Beam::Parallel] {
-            let g = geom(beam);
+        // Circular scans take the column path; disturbed per-view vectors (columns not along z)
+        // the per-voxel one, weighted by the isocentre's depth along each view's axis.
+        let disturbed = |beam| crate::testing::wobbled(&geom(beam));
+        for g in [
+            geom(Beam::Cone),
+            geom(Beam::Parallel),
+            disturbed(Beam::Cone),
+            disturbed(Beam::Parallel),
+        ] {
+            let beam = g.beam;
             let d = &g.detector;
             let f = |c: f64, r: f64| 0.5 + 0.01 * c - 0.02 * r;
             let proj = Array3::from_shape_fn((g.views(), d.rows, d.cols), |(_, r, c)| {
@@ -358,7 +418,7 @@ mod tests {
                         c > 0.0 && c < (d.cols - 1) as f64 && r > 0.0 && r < (d.rows - 1) as f64
                     );
                     let w = match beam {
-                        Beam::Cone => (g.dso / cam.to_camera(p)[2]).powi(2),
+                        Beam::Cone => (cam.to_camera([0.0; 3])[2] / cam.to_camera(p)[2]).powi(2),
                         Beam::Parallel => 1.0,
                     };
                     want += sk * w * f(c, r);

@@ -84,6 +84,7 @@ mod tests {
                 ..VolumeGrid::cube(16, 1.0)
             },
             angles_rad: Geometry::full_turn(8),
+            vectors: None,
         }
     }
 

@@ -82,9 +82,14 @@ impl Scene {
         out += &kv(&[
             (
                 "beam",
-                match g.beam {
-                    Beam::Cone => "cone".into(),
-                    Beam::Parallel => "parallel".into(),
+                match (g.beam, g.is_circular()) {
+                    (Beam::Cone, true) => "cone".into(),
+                    (Beam::Parallel, true) => "parallel".into(),
+                    (b, false) => format!(
+                        "{}, per-view vectors (the distances, pitches and angles below are \
+                         nominal)",
+                        if b == Beam::Cone { "cone" } else { "parallel" }
+                    ),
                 },
             ),
             (

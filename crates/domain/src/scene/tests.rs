@@ -27,6 +27,7 @@ fn small_scene() -> Scene {
         },
         volume: VolumeGrid::cube(4, 1.0),
         angles_rad: Geometry::full_turn(5),
+        vectors: None,
     };
     let mut channels = vec![
         Channel::new("80kVp", SpectralCoordinate::TubeVoltage { kvp: 80.0 }),

@@ -216,6 +216,7 @@ impl GeometrySpec {
                 ..VolumeGrid::cube(v.n, v.size_mm / v.n as f64)
             },
             angles_rad: angles,
+            vectors: None,
         };
         g.validate()?;
         Ok(g)

@@ -61,6 +61,13 @@ impl CentralSinogram {
     /// uses: all channels at all views, else the channel measured at the most views (its views).
     pub fn of(scene: &Scene) -> Result<CentralSinogram> {
         let g = &scene.geometry;
+        if !g.is_circular() {
+            return Err(Error::invalid(
+                "geometry.vectors",
+                "the axis search shifts a circular orbit's detector; per-view vectors already \
+                 place every view (shift their detector centres instead)",
+            ));
+        }
         let (n, m) = (scene.n_views(), scene.n_channels());
         let count = |c: usize| (0..n).filter(|&v| scene.availability[[v, c]]).count();
         let best = (0..m).max_by_key(|&c| count(c)).unwrap_or(0);

@@ -8,6 +8,11 @@
 //!   relative to the principal point (so detector offsets are honoured);
 //! * `h` the ramp kernel in pixel units along detector rows ([`RampFilter`]) and `τ = pitch_u ·
 //!   DSO / DSD` the pitch at the isocentre (`pitch_u` for parallel beam);
+//! * with per-view vectors, the cosine weight, `τ` and `U` are each view's own (its camera's
+//!   principal point, distances and pitches) and the backprojection follows each view's pose;
+//!   `Δβ` and Parker's weights use the nominal angles. This is exact on a circular orbit and the
+//!   usual approximation (as RTK's per-projection FDK) for wobble, tilts and shifts: the ramp
+//!   still filters along detector rows.
 //! * `U = (DSO − ⟨x, ŝ⟩)/DSO` (the voxel-driven [`backproject_voxel`]);
 //! * `Δβ_k` the angular width each view stands for (half the gap to its neighbours, circularly for
 //!   a full scan), and `r` the redundancy factor: ½ for a full scan (every ray is measured twice),
@@ -55,58 +60,129 @@ pub fn fdk(
     )?;
     let kind = scan_kind(geometry);
     let mut p = projections.to_owned();
-    // Pre-weights: cosine (cone; the same image for every view, as the principal point is) and
-    // Parker (short scan).
+    let frames: Vec<ViewFrame> = (0..geometry.views())
+        .map(|k| ViewFrame::of(geometry, k))
+        .collect();
+    // Pre-weights: cosine (cone; one image for every view on a circular orbit, where the
+    // principal point is shared) and Parker (short scan).
     if geometry.beam == Beam::Cone {
         let parker = if kind == ScanKind::Short {
             Some(Parker::new(geometry)?)
         } else {
             None
         };
-        let dsd = geometry.dsd;
-        let cam = geometry.camera(0);
-        let at = |c: usize, r: usize| {
-            (
-                (c as f64 - cam.cx) * d.pitch_u,
-                (r as f64 - cam.cy) * d.pitch_v,
-            )
-        };
-        let cosine: Vec<f32> = (0..d.rows * d.cols)
-            .map(|i| {
-                let (u, v) = at(i % d.cols, i / d.cols);
-                (dsd / (dsd * dsd + u * u + v * v).sqrt()) as f32
-            })
-            .collect();
+        let shared = geometry
+            .is_circular()
+            .then(|| frames[0].cosine(d.rows, d.cols));
         p.as_slice_mut()
             .expect("fresh array")
             .par_chunks_mut(d.rows * d.cols)
             .enumerate()
-            .for_each(|(k, view)| match &parker {
-                None => view.iter_mut().zip(&cosine).for_each(|(x, c)| *x *= c),
-                Some(pk) => {
-                    let w: Vec<f32> = (0..d.cols)
-                        .map(|c| pk.weight(k, at(c, 0).0) as f32)
-                        .collect();
-                    for (line, cos) in view.chunks_mut(d.cols).zip(cosine.chunks(d.cols)) {
-                        for ((x, c), w) in line.iter_mut().zip(cos).zip(&w) {
-                            *x *= c * w;
+            .for_each(|(k, view)| {
+                let f = &frames[k];
+                let own;
+                let cosine = match &shared {
+                    Some(c) => c,
+                    None => {
+                        own = f.cosine(d.rows, d.cols);
+                        &own
+                    }
+                };
+                match &parker {
+                    None => view.iter_mut().zip(cosine).for_each(|(x, c)| *x *= c),
+                    Some(pk) => {
+                        let w: Vec<f32> = (0..d.cols)
+                            .map(|c| pk.weight(k, f.at(c, 0).0, f.dsd) as f32)
+                            .collect();
+                        for (line, cos) in view.chunks_mut(d.cols).zip(cosine.chunks(d.cols)) {
+                            for ((x, c), w) in line.iter_mut().zip(cos).zip(&w) {
+                                *x *= c * w;
+                            }
                         }
                     }
                 }
             });
     }
     RampFilter::new(d.cols, window)?.apply(&mut p)?;
-    let tau = d.pitch_u / geometry.magnification();
     let redundancy = match kind {
         ScanKind::Full => 0.5,
         ScanKind::Short | ScanKind::Parallel => 1.0,
     };
     let scale: Vec<f64> = angular_weights(geometry, kind)
         .into_iter()
-        .map(|db| db * redundancy / tau)
+        .zip(&frames)
+        .map(|(db, f)| db * redundancy / f.tau)
         .collect();
     let views: Vec<usize> = (0..geometry.views()).collect();
     Ok(backproject_voxel(geometry, p.view(), &views, &scale)?)
+}
+
+/// What the weights need of one view's detector: its principal point (pixels), pitches and
+/// source–detector distance (mm) and its pitch at the isocentre `τ`. On a circular orbit every
+/// view has the geometry's; with per-view vectors each has its own camera's.
+struct ViewFrame {
+    cx: f64,
+    cy: f64,
+    pitch_u: f64,
+    pitch_v: f64,
+    dsd: f64,
+    tau: f64,
+}
+
+impl ViewFrame {
+    fn of(geometry: &Geometry, view: usize) -> ViewFrame {
+        let cam = geometry.camera(view);
+        let d = &geometry.detector;
+        match (&geometry.vectors, geometry.beam) {
+            (None, _) => ViewFrame {
+                cx: cam.cx,
+                cy: cam.cy,
+                pitch_u: d.pitch_u,
+                pitch_v: d.pitch_v,
+                dsd: geometry.dsd,
+                tau: d.pitch_u / geometry.magnification(),
+            },
+            (Some(_), Beam::Cone) => {
+                let pitch_u = cam.sdd / cam.fx;
+                ViewFrame {
+                    cx: cam.cx,
+                    cy: cam.cy,
+                    pitch_u,
+                    pitch_v: cam.sdd / cam.fy,
+                    dsd: cam.sdd,
+                    // The isocentre's depth along the view axis over the detector's.
+                    tau: pitch_u / (cam.sdd / cam.translation[2]),
+                }
+            }
+            (Some(_), Beam::Parallel) => ViewFrame {
+                cx: cam.cx,
+                cy: cam.cy,
+                pitch_u: 1.0 / cam.fx,
+                pitch_v: 1.0 / cam.fy,
+                dsd: cam.sdd,
+                tau: 1.0 / cam.fx,
+            },
+        }
+    }
+
+    /// Pixel (column, row) relative to the principal point, mm.
+    fn at(&self, c: usize, r: usize) -> (f64, f64) {
+        (
+            (c as f64 - self.cx) * self.pitch_u,
+            (r as f64 - self.cy) * self.pitch_v,
+        )
+    }
+
+    /// The cone-beam cosine weight `DSD / √(DSD² + u² + v²)` of every pixel, row-major.
+    fn cosine(&self, rows: usize, cols: usize) -> Vec<f32> {
+        let dsd = self.dsd;
+        (0..rows * cols)
+            .map(|i| {
+                let (u, v) = self.at(i % cols, i / cols);
+                (dsd / (dsd * dsd + u * u + v * v).sqrt()) as f32
+            })
+            .collect()
+    }
 }
 
 /// Classify the scan (see the module docs).
@@ -182,7 +258,6 @@ struct Parker {
     beta: Vec<f64>,
     /// Half over-scan δ = (range − π)/2.
     delta: f64,
-    dsd: f64,
 }
 
 impl Parker {
@@ -210,15 +285,15 @@ impl Parker {
         Ok(Parker {
             beta: geometry.angles_rad.iter().map(|a| a - min).collect(),
             delta,
-            dsd: geometry.dsd,
         })
     }
 
-    /// Weight of view `k` at detector position `u` (mm from the principal point).
-    fn weight(&self, k: usize, u: f64) -> f64 {
+    /// Weight of view `k` at detector position `u` (mm from the principal point) on a detector
+    /// `dsd` from the source.
+    fn weight(&self, k: usize, u: f64, dsd: f64) -> f64 {
         // Our fan angle atan(u/DSD) is positive towards +u; the conjugate of (β, γ) is then
         // (β + π − 2γ, −γ), so Parker's formula (conjugate at β + π + 2γ) takes γ = −atan(u/DSD).
-        parker_weight(self.beta[k], -(u / self.dsd).atan(), self.delta)
+        parker_weight(self.beta[k], -(u / dsd).atan(), self.delta)
     }
 }
 

@@ -8,7 +8,7 @@
 //! normalised density `ρ` is `ρ · density_scale` mm⁻¹.
 
 use crate::{Error, Result};
-use prism_domain::geometry::{Geometry, VolumeGrid};
+use prism_domain::geometry::{Geometry, ViewVectors, VolumeGrid};
 use prism_render::VoxelGrid;
 
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -63,6 +63,12 @@ impl World {
         out.detector.offset_u *= s;
         out.detector.offset_v *= s;
         out.volume = self.volume(&g.volume);
+        // Positions and pixel steps scale; a parallel beam's ray direction may (any length).
+        if let Some(w) = &mut out.vectors {
+            for v in w.iter_mut() {
+                *v = ViewVectors::from(<[f64; 12]>::from(*v).map(|x| x * s));
+            }
+        }
         out
     }
 

@@ -34,6 +34,7 @@ pub(crate) fn scene() -> Scene {
         },
         volume: VolumeGrid::cube(24, 2.0),
         angles_rad: angles,
+        vectors: None,
     };
     let ph = SpectralPhantom::builtin(22.0).unwrap();
     let paths = ph.material_paths(&geometry).unwrap();

@@ -81,6 +81,7 @@ fn chord_matches_bisection_reference_on_cone_beam_rays() {
         },
         volume: VolumeGrid::cube(32, 3.0),
         angles_rad: Geometry::uniform_angles(5, 0.3, 6.0),
+        vectors: None,
     };
     let mut hits = 0;
     let mut misses = 0;

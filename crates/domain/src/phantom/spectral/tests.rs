@@ -17,6 +17,7 @@ fn geometry(beam: Beam) -> Geometry {
         },
         volume: VolumeGrid::cube(32, 2.0),
         angles_rad: Geometry::full_turn(4),
+        vectors: None,
     }
 }
 

@@ -270,7 +270,8 @@ impl Joseph {
 
     /// The horizontal walk shared by column `col`'s rays, clipped to `support` in x and y, or
     /// `None` when sheets are off or the column's rays are not coplanar with z (then every row
-    /// takes the general walk; cameras built by [`Geometry`] always have vertical columns).
+    /// takes the general walk: circular orbits always have vertical columns, per-view vectors
+    /// with a turned or tilted detector do not).
     fn column_walk(
         &self,
         cam: &Camera,

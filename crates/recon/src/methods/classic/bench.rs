@@ -88,6 +88,7 @@ pub fn bench_geometry(n: usize, det: usize, views: usize) -> Geometry {
         },
         volume: VolumeGrid::cube(n, 256.0 / n as f64),
         angles_rad: Geometry::full_turn(views),
+        vectors: None,
     }
 }
 
