@@ -40,6 +40,10 @@ pub struct ImportConfig {
     /// pixels were raised is reported.
     #[serde(default = "default_min_counts")]
     pub min_counts: f64,
+    /// Ring suppression on every channel (`{size: 21}`: sorting-based stripe removal), before
+    /// the log for counts (`import::rings`); none by default.
+    #[serde(default)]
+    pub rings: Option<super::rings::RingConfig>,
     pub channels: Vec<ChannelSource>,
     #[serde(default)]
     pub select: ViewSelection,

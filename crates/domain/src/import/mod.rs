@@ -16,6 +16,7 @@ pub mod axis;
 pub mod config;
 pub mod hdf5;
 pub mod images;
+pub mod rings;
 #[cfg(test)]
 mod tests;
 
@@ -52,6 +53,9 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
             "channels",
             "an import needs at least one channel",
         ));
+    }
+    if let Some(r) = &config.rings {
+        r.validate(cols)?;
     }
     if !(config.min_counts.is_finite() && config.min_counts > 0.0) {
         return Err(Error::invalid(
@@ -139,13 +143,29 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
                     ));
                 }
             }
-            let (p, n) = line_integrals(stack, flat.view(), dark.view(), config.min_counts)
-                .map_err(|e| e.under(&format!("channels[{c}]")))?;
+            let at = |e: Error| e.under(&format!("channels[{c}]"));
+            let (p, n) = match &config.rings {
+                None => line_integrals(stack, flat.view(), dark.view(), config.min_counts)
+                    .map_err(at)?,
+                // Stripes are gain errors: removed from the transmission, before the log.
+                Some(r) => {
+                    let (mut t, n) =
+                        transmission(stack, flat.view(), dark.view(), config.min_counts)
+                            .map_err(at)?;
+                    r.apply(&mut t)?;
+                    t.mapv_inplace(|x| -x.ln());
+                    (t, n)
+                }
+            };
             raised.push(n);
             p
         } else {
             raised.push(0);
-            stack
+            let mut p = stack;
+            if let Some(r) = &config.rings {
+                r.apply(&mut p)?;
+            }
+            p
         };
         if bottom_up {
             p.invert_axis(Axis(1));
@@ -187,10 +207,32 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
 /// `min_counts` where smaller; returns the line integrals and how many pixels were raised.
 /// `F − D ≤ 0` anywhere is an error naming the pixel.
 pub fn line_integrals(
+    counts: Array3<f32>,
+    flat: ArrayView2<f32>,
+    dark: ArrayView2<f32>,
+    min_counts: f64,
+) -> Result<(Array3<f32>, usize)> {
+    normalise(counts, flat, dark, min_counts, |t| -t.ln() as f32)
+}
+
+/// The transmission `(I − D) / (F − D)` of every image of `counts`: [`line_integrals`] before
+/// the log.
+pub fn transmission(
+    counts: Array3<f32>,
+    flat: ArrayView2<f32>,
+    dark: ArrayView2<f32>,
+    min_counts: f64,
+) -> Result<(Array3<f32>, usize)> {
+    normalise(counts, flat, dark, min_counts, |t| t as f32)
+}
+
+/// `out((I − D) / (F − D))` per pixel (in f64), `I − D` raised to `min_counts`.
+fn normalise(
     mut counts: Array3<f32>,
     flat: ArrayView2<f32>,
     dark: ArrayView2<f32>,
     min_counts: f64,
+    out: impl Fn(f64) -> f32,
 ) -> Result<(Array3<f32>, usize)> {
     let beam = &flat - &dark;
     if let Some(((r, c), v)) = beam
@@ -215,7 +257,7 @@ pub fn line_integrals(
                 } else {
                     net
                 };
-                *v = -(net / b as f64).ln() as f32;
+                *v = out(net / b as f64);
             });
     }
     Ok((counts, raised))
@@ -250,6 +292,12 @@ pub fn footprint(config: &ImportConfig, base: &Path) -> Result<Footprint> {
         "one channel's images as read and as f32",
         memory::bytes(pixels, per_value + 4),
     );
+    if config.rings.is_some() {
+        f.add(
+            "ring suppression: a few detector rows' sinograms, sorted, ordered and filtered",
+            memory::bytes(views * cols, rings::SCRATCH_BYTES * rings::batch_rows()),
+        );
+    }
     let referenced = config.select.reference != ReferenceKind::None
         || config.channels.iter().any(|c| c.reference.is_some());
     if referenced {
