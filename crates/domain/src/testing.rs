@@ -166,28 +166,14 @@ pub fn geometry(beam: Beam, n: usize, det: usize, views: usize, offsets: bool) -
 /// within its plane (up to 2.3°) and tilted out of it (1.7° about its rows), and shifted along u and
 /// v. Deterministic in the view index; the angles are derived from the vectors.
 pub fn wobbled(g: &Geometry) -> Geometry {
-    let rotate = |a: [f64; 3], e: [f64; 3], phi: f64| {
-        // Rodrigues: a·cos φ + (e × a)·sin φ + e·(e·a)(1 − cos φ), |e| = 1.
-        let (s, c) = phi.sin_cos();
-        let ea = e[0] * a[0] + e[1] * a[1] + e[2] * a[2];
-        let x = [
-            e[1] * a[2] - e[2] * a[1],
-            e[2] * a[0] - e[0] * a[2],
-            e[0] * a[1] - e[1] * a[0],
-        ];
-        [0, 1, 2].map(|k| a[k] * c + x[k] * s + e[k] * ea * (1.0 - c))
-    };
-    let unit = |a: [f64; 3]| {
-        let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-        a.map(|x| x / n)
-    };
+    use crate::geometry::{cross, dot, rotate, unit};
+    let unit = |a: [f64; 3]| unit(a).expect("non-zero");
     let vectors = g
         .to_vectors()
         .into_iter()
         .enumerate()
         .map(|(k, mut w)| {
             let k = k as f64;
-            let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
             let less = |a: [f64; 3], e: [f64; 3]| {
                 let t = dot(a, e);
                 [0, 1, 2].map(|k| a[k] - t * e[k])
@@ -204,11 +190,7 @@ pub fn wobbled(g: &Geometry) -> Geometry {
                 }
             }
             let (eu, ev) = (unit(w.u), unit(w.v));
-            let normal = [
-                eu[1] * ev[2] - eu[2] * ev[1],
-                eu[2] * ev[0] - eu[0] * ev[2],
-                eu[0] * ev[1] - eu[1] * ev[0],
-            ];
+            let normal = cross(eu, ev);
             let spin = 0.04 * (1.3 * k).cos();
             w.u = rotate(w.u, normal, spin);
             w.v = rotate(w.v, normal, spin);

@@ -20,6 +20,7 @@ mod vectors;
 pub use convert::{R2Scanner, TigreGeometry};
 pub use prism_camera::{Camera, Projection, Ray};
 pub use vectors::{PERPENDICULAR, ViewVectors};
+pub(crate) use vectors::{cross, dot, rotate, unit};
 
 use crate::error::{ensure_finite as finite, ensure_positive as positive};
 use crate::{Error, Result};

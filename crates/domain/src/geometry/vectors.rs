@@ -359,7 +359,7 @@ fn unwrap_turns(mut a: Vec<f64>) -> Vec<f64> {
     a
 }
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
@@ -375,7 +375,7 @@ fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
     [a[0] * s, a[1] * s, a[2] * s]
 }
 
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [
         a[1] * b[2] - a[2] * b[1],
         a[2] * b[0] - a[0] * b[2],
@@ -387,8 +387,16 @@ fn norm(a: [f64; 3]) -> f64 {
     dot(a, a).sqrt()
 }
 
+/// `a` turned by `phi` radians about the unit axis `e` (Rodrigues).
+pub(crate) fn rotate(a: [f64; 3], e: [f64; 3], phi: f64) -> [f64; 3] {
+    let (s, c) = phi.sin_cos();
+    let ea = dot(e, a);
+    let x = cross(e, a);
+    [0, 1, 2].map(|k| a[k] * c + x[k] * s + e[k] * ea * (1.0 - c))
+}
+
 /// `a / |a|`, or `None` for a zero (or non-finite) length.
-fn unit(a: [f64; 3]) -> Option<[f64; 3]> {
+pub(crate) fn unit(a: [f64; 3]) -> Option<[f64; 3]> {
     let n = norm(a);
     (n > 0.0 && n.is_finite()).then(|| scale(a, 1.0 / n))
 }

@@ -17,6 +17,10 @@
 //!    interleaved over the training views ([`Acquisition`]), less the pairs the config drops),
 //!    provenance.
 
+mod disturb;
+
+pub use disturb::DisturbSpec;
+
 use crate::geometry::{Beam, Detector, Geometry, VolumeGrid};
 use crate::memory::{self, Footprint};
 use crate::observe::Observer;
@@ -117,6 +121,10 @@ pub struct GeometrySpec {
     pub start_deg: f64,
     #[serde(default = "full_turn_deg")]
     pub total_deg: f64,
+    /// Seeded per-view deviations from the circular orbit, stored as per-view vectors (the
+    /// fields above stay the nominal scan): `{source_mm, detector_mm, spin_deg, tilt_deg}`, σ each.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub disturb: Option<DisturbSpec>,
 }
 
 fn full_turn_deg() -> f64 {
@@ -219,7 +227,10 @@ impl GeometrySpec {
             vectors: None,
         };
         g.validate()?;
-        Ok(g)
+        match &self.disturb {
+            Some(d) => d.apply(&g, seed).map_err(|e| e.under("disturb")),
+            None => Ok(g),
+        }
     }
 }
 
