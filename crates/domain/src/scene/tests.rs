@@ -420,6 +420,18 @@ fn geometry_errors_name_the_file_and_field() {
     assert_names(&err, "scene.yaml", "`channels[2].coordinate`");
     let err = load_error(|d| edit_yaml(d, |v| v["split"]["test"][0] = 2.into()));
     assert_names(&err, "scene.yaml", "`split.test[0]`");
+    // Per-view vectors: a scene saved with them loads back equal; a bad row is named.
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("s");
+    let mut s = small_scene();
+    s.geometry = crate::testing::wobbled(&s.geometry);
+    s.save(&dir).unwrap();
+    assert_eq!(Scene::load(&dir).unwrap().geometry, s.geometry);
+    edit_yaml(&dir, |v| v["geometry"]["vectors"][3][6] = 0.0.into());
+    edit_yaml(&dir, |v| v["geometry"]["vectors"][3][7] = 0.0.into());
+    edit_yaml(&dir, |v| v["geometry"]["vectors"][3][8] = 0.0.into());
+    let err = Scene::load(&dir).unwrap_err().to_string();
+    assert_names(&err, "scene.yaml", "`geometry.vectors[3].u`");
 }
 
 #[test]
