@@ -44,6 +44,11 @@ pub struct ImportConfig {
     /// the log for counts (`import::rings`); none by default.
     #[serde(default)]
     pub rings: Option<super::rings::RingConfig>,
+    /// Bad-pixel repair on every channel given as counts (`{}`: pixels whose open beam is not
+    /// positive or deviates from its neighbours' median by more than half; `import::bad_pixels`),
+    /// before the log; none by default.
+    #[serde(default)]
+    pub bad_pixels: Option<super::bad_pixels::BadPixelConfig>,
     pub channels: Vec<ChannelSource>,
     #[serde(default)]
     pub select: ViewSelection,

@@ -13,6 +13,7 @@
 //! `prism import` command computes it between the two (`prism_recon`).
 
 pub mod axis;
+pub mod bad_pixels;
 pub mod config;
 pub mod hdf5;
 pub mod images;
@@ -40,6 +41,8 @@ pub struct FullScan {
     pub scene: Scene,
     /// Per channel: pixels whose dark-corrected counts were raised to `min_counts`.
     pub raised: Vec<usize>,
+    /// Per channel: bad detector pixels repaired (`bad_pixels`; 0 for line integrals).
+    pub bad_pixels: Vec<usize>,
 }
 
 /// Read and convert every channel of `config` (paths relative to `base`); `config_text` is kept
@@ -56,6 +59,9 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
     }
     if let Some(r) = &config.rings {
         r.validate(cols)?;
+    }
+    if let Some(b) = &config.bad_pixels {
+        b.validate()?;
     }
     if !(config.min_counts.is_finite() && config.min_counts > 0.0) {
         return Err(Error::invalid(
@@ -77,6 +83,7 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
     let mut projections = Array4::<f32>::zeros((m, n_views, rows, cols));
     let mut availability = Array2::from_elem((n_views, m), false);
     let mut raised = Vec::with_capacity(m);
+    let mut bad_counts = Vec::with_capacity(m);
     let mut channels = Vec::with_capacity(m);
     for (c, src) in config.channels.iter().enumerate() {
         let field = |f: &str| format!("channels[{c}].{f}");
@@ -144,15 +151,31 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
                 }
             }
             let at = |e: Error| e.under(&format!("channels[{c}]"));
-            let (p, n) = match &config.rings {
-                None => line_integrals(stack, flat.view(), dark.view(), config.min_counts)
+            let bad = match &config.bad_pixels {
+                Some(b) => Some(b.find((&flat - &dark).view()).map_err(at)?),
+                None => None,
+            };
+            bad_counts.push(bad.as_ref().map_or(0, |b| b.iter().filter(|&&x| x).count()));
+            let (p, n) = match (&config.rings, &bad) {
+                (None, None) => line_integrals(stack, flat.view(), dark.view(), config.min_counts)
                     .map_err(at)?,
-                // Stripes are gain errors: removed from the transmission, before the log.
-                Some(r) => {
-                    let (mut t, n) =
-                        transmission(stack, flat.view(), dark.view(), config.min_counts)
-                            .map_err(at)?;
-                    r.apply(&mut t)?;
+                // Bad pixels and stripes are detector faults: repaired in the transmission,
+                // before the log.
+                (rings, bad) => {
+                    let (mut t, n) = transmission(
+                        stack,
+                        flat.view(),
+                        dark.view(),
+                        config.min_counts,
+                        bad.as_ref(),
+                    )
+                    .map_err(at)?;
+                    if let (Some(b), Some(mask)) = (&config.bad_pixels, bad) {
+                        b.repair(&mut t, mask);
+                    }
+                    if let Some(r) = rings {
+                        r.apply(&mut t)?;
+                    }
                     t.mapv_inplace(|x| -x.ln());
                     (t, n)
                 }
@@ -161,6 +184,7 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
             p
         } else {
             raised.push(0);
+            bad_counts.push(0);
             let mut p = stack;
             if let Some(r) = &config.rings {
                 r.apply(&mut p)?;
@@ -200,7 +224,11 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
         materials: None,
     };
     scene.validate()?;
-    Ok(FullScan { scene, raised })
+    Ok(FullScan {
+        scene,
+        raised,
+        bad_pixels: bad_counts,
+    })
 }
 
 /// `−ln((I − D) / (F − D))` per pixel of every image of `counts`, with `I − D` raised to
@@ -212,32 +240,36 @@ pub fn line_integrals(
     dark: ArrayView2<f32>,
     min_counts: f64,
 ) -> Result<(Array3<f32>, usize)> {
-    normalise(counts, flat, dark, min_counts, |t| -t.ln() as f32)
+    normalise(counts, flat, dark, min_counts, None, |t| -t.ln() as f32)
 }
 
 /// The transmission `(I − D) / (F − D)` of every image of `counts`: [`line_integrals`] before
-/// the log.
+/// the log. Pixels marked in `skip` (bad pixels, to be repaired) are set to 1 and not checked.
 pub fn transmission(
     counts: Array3<f32>,
     flat: ArrayView2<f32>,
     dark: ArrayView2<f32>,
     min_counts: f64,
+    skip: Option<&ndarray::Array2<bool>>,
 ) -> Result<(Array3<f32>, usize)> {
-    normalise(counts, flat, dark, min_counts, |t| t as f32)
+    normalise(counts, flat, dark, min_counts, skip, |t| t as f32)
 }
 
-/// `out((I − D) / (F − D))` per pixel (in f64), `I − D` raised to `min_counts`.
+/// `out((I − D) / (F − D))` per pixel (in f64), `I − D` raised to `min_counts`; `out(1)` at the
+/// pixels marked in `skip`.
 fn normalise(
     mut counts: Array3<f32>,
     flat: ArrayView2<f32>,
     dark: ArrayView2<f32>,
     min_counts: f64,
+    skip: Option<&ndarray::Array2<bool>>,
     out: impl Fn(f64) -> f32,
 ) -> Result<(Array3<f32>, usize)> {
     let beam = &flat - &dark;
+    let skipped = |p: (usize, usize)| skip.is_some_and(|s| s[p]);
     if let Some(((r, c), v)) = beam
         .indexed_iter()
-        .find(|(_, v)| v.partial_cmp(&&0.0) != Some(std::cmp::Ordering::Greater))
+        .find(|(p, v)| !skipped(*p) && v.partial_cmp(&&0.0) != Some(std::cmp::Ordering::Greater))
     {
         return Err(Error::invalid(
             format!("flat[{r}][{c}]"),
@@ -246,10 +278,14 @@ fn normalise(
     }
     let mut raised = 0;
     for mut image in counts.outer_iter_mut() {
-        ndarray::Zip::from(&mut image)
+        ndarray::Zip::indexed(&mut image)
             .and(&dark)
             .and(&beam)
-            .for_each(|v, &d, &b| {
+            .for_each(|p, v, &d, &b| {
+                if skipped(p) {
+                    *v = out(1.0);
+                    return;
+                }
                 let net = *v as f64 - d as f64;
                 let net = if net < min_counts {
                     raised += 1;

@@ -546,3 +546,86 @@ fn ring_window_is_checked_by_field() {
         21
     );
 }
+
+#[test]
+fn bad_pixels_are_found_in_the_open_beam_and_repaired_before_the_log() {
+    // A smooth object; a dead pixel (open beam 0: flat = dark = counts) and a hot one (its flat
+    // three times its neighbours', its response to the object normal: flat-field correction
+    // would add ln 3 there). Repaired, both are their good neighbours' median: within the
+    // object's change over the 5 × 5 window (≤ 0.06 here); every other pixel is unchanged.
+    let (views, rows, cols) = (3, 8, 12);
+    let dark = 50.0f32;
+    let truth =
+        |v: usize, r: usize, c: usize| 0.2 + 0.01 * c as f32 + 0.02 * r as f32 + 0.01 * v as f32;
+    let open = |c: usize| 1000.0 * (1.0 + 0.02 * c as f32);
+    let mut flat = Array2::from_shape_fn((rows, cols), |(_, c)| dark + open(c));
+    let counts = Array3::from_shape_fn((views, rows, cols), |(v, r, c)| {
+        if (r, c) == (2, 3) {
+            dark
+        } else {
+            dark + open(c) * (-truth(v, r, c)).exp()
+        }
+    });
+    flat[[2, 3]] = dark;
+    flat[[5, 7]] = dark + 3.0 * open(7);
+    let dir = tempfile::tempdir().unwrap();
+    ndarray_npy::write_npy(dir.path().join("counts.npy"), &counts).unwrap();
+    ndarray_npy::write_npy(dir.path().join("flat.npy"), &flat).unwrap();
+    ndarray_npy::write_npy(
+        dir.path().join("dark.npy"),
+        &Array2::from_elem((rows, cols), dark),
+    )
+    .unwrap();
+    let text = |extra: &str| {
+        format!(
+            "name: t\ngeometry: {{prism: {{beam: parallel, dso: 100.0, dsd: 150.0, \
+             detector: {{rows: 8, cols: 12, pitch_u: 1.0, pitch_v: 1.0}}, \
+             volume: {{nx: 4, ny: 4, nz: 4, dx: 1.0, dy: 1.0, dz: 1.0}}}}}}\n\
+             angles: {{count: 3}}\nflat: {{path: flat.npy}}\ndark: {{path: dark.npy}}\n{extra}\
+             channels:\n  - {{label: a, coordinate: {{kind: tube_voltage, kvp: 80}}, \
+             counts: {{path: counts.npy}}}}\n"
+        )
+    };
+    // Without repair the dead pixel is an error naming it.
+    let plain = text("");
+    let e = assemble(&config(&plain), dir.path(), &plain)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("flat[2][3]"), "{e}");
+    let repaired = text("bad_pixels: {}\n");
+    let c = config(&repaired);
+    let found = c
+        .bad_pixels
+        .as_ref()
+        .unwrap()
+        .find((&flat - dark).view())
+        .unwrap();
+    let marked: Vec<(usize, usize)> = found
+        .indexed_iter()
+        .filter(|(_, b)| **b)
+        .map(|(p, _)| p)
+        .collect();
+    assert_eq!(marked, [(2, 3), (5, 7)]);
+    let full = assemble(&c, dir.path(), &repaired).unwrap();
+    assert_eq!(full.bad_pixels, [2]);
+    let p = &full.scene.projections;
+    for v in 0..views {
+        for r in 0..rows {
+            for col in 0..cols {
+                let err = (p[[0, v, r, col]] - truth(v, r, col)).abs();
+                let tol = if marked.contains(&(r, col)) {
+                    0.06
+                } else {
+                    1e-5
+                };
+                assert!(err < tol, "view {v} pixel ({r}, {col}): {err}");
+            }
+        }
+    }
+    // Its settings are checked by field.
+    let bad = text("bad_pixels: {max_deviation: 0.0}\n");
+    let e = assemble(&config(&bad), dir.path(), &bad)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("bad_pixels.max_deviation"), "{e}");
+}

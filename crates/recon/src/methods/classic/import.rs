@@ -94,6 +94,17 @@ pub fn import_full(
             );
         }
     }
+    for (ch, n) in full.scene.channels.iter().zip(&full.bad_pixels) {
+        if *n > 0 {
+            observer.note(
+                Level::Info,
+                &format!(
+                    "channel `{}`: {n} bad detector pixels repaired in every image",
+                    ch.label
+                ),
+            );
+        }
+    }
     let mut scene = full.scene;
     if config.axis.method != AxisMethod::Given {
         let estimate = estimate_axis(&scene, &config.axis, observer)?;
