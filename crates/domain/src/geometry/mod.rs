@@ -20,7 +20,7 @@ mod vectors;
 pub use convert::{R2Scanner, TigreGeometry};
 pub use prism_camera::{Camera, Projection, Ray};
 pub use vectors::{PERPENDICULAR, ViewVectors};
-pub(crate) use vectors::{cross, dot, rotate, unit};
+pub(crate) use vectors::{cross, dot, rotate, sub, unit};
 
 use crate::error::{ensure_finite as finite, ensure_positive as positive};
 use crate::{Error, Result};
@@ -33,6 +33,25 @@ use std::f64::consts::PI;
 pub enum Beam {
     Cone,
     Parallel,
+}
+
+impl Beam {
+    /// The camera model of this beam's views.
+    pub fn projection(self) -> Projection {
+        match self {
+            Beam::Cone => Projection::Cone,
+            Beam::Parallel => Projection::Parallel,
+        }
+    }
+
+    /// A camera's focal length `f` for a detector plane `sdd` from the camera origin with
+    /// pixels `pitch` apart: pixels (cone, `sdd / pitch`) or pixels per mm (parallel, `1 / pitch`).
+    pub fn focal(self, sdd: f64, pitch: f64) -> f64 {
+        match self {
+            Beam::Cone => sdd / pitch,
+            Beam::Parallel => 1.0 / pitch,
+        }
+    }
 }
 
 /// Flat-panel detector.
@@ -277,19 +296,12 @@ impl Geometry {
         let rotation = [[-s, c, 0.0], [0.0, 0.0, -1.0], [-c, -s, 0.0]];
         // The source at DSO·(cos θ, sin θ, 0) maps to the camera origin.
         let translation = [0.0, 0.0, self.dso];
-        let (fx, fy) = match self.beam {
-            Beam::Cone => (self.dsd / d.pitch_u, self.dsd / d.pitch_v),
-            Beam::Parallel => (1.0 / d.pitch_u, 1.0 / d.pitch_v),
-        };
         Camera {
-            projection: match self.beam {
-                Beam::Cone => Projection::Cone,
-                Beam::Parallel => Projection::Parallel,
-            },
+            projection: self.beam.projection(),
             rotation,
             translation,
-            fx,
-            fy,
+            fx: self.beam.focal(self.dsd, d.pitch_u),
+            fy: self.beam.focal(self.dsd, d.pitch_v),
             cx: (d.cols as f64 - 1.0) / 2.0 - d.offset_u / d.pitch_u,
             cy: (d.rows as f64 - 1.0) / 2.0 - d.offset_v / d.pitch_v,
             rows: d.rows,

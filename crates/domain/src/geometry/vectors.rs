@@ -15,7 +15,7 @@
 //! removing their components along the rays, which changes no ray), and `u × v` must point from
 //! the source towards the detector (a mirrored image: reverse its columns and negate `u`).
 
-use super::{Beam, Camera, Geometry, Projection};
+use super::{Beam, Camera, Geometry};
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 
@@ -83,21 +83,14 @@ impl ViewVectors {
         // The pitches (for a parallel beam across the rays: the components along them change
         // no ray).
         let (pu, pv) = (dot(self.u, xc), dot(self.v, yc));
-        let (fx, fy) = match beam {
-            Beam::Cone => (sdd / pu, sdd / pv),
-            Beam::Parallel => (1.0 / pu, 1.0 / pv),
-        };
         let r = rotation;
         let translation = [0, 1, 2].map(|k| -dot(r[k], origin));
         Ok(Camera {
-            projection: match beam {
-                Beam::Cone => Projection::Cone,
-                Beam::Parallel => Projection::Parallel,
-            },
+            projection: beam.projection(),
             rotation,
             translation,
-            fx,
-            fy,
+            fx: beam.focal(sdd, pu),
+            fy: beam.focal(sdd, pv),
             cx: (cols as f64 - 1.0) / 2.0 + dot(foot, xc) / pu,
             cy: (rows as f64 - 1.0) / 2.0 + dot(foot, yc) / pv,
             rows,
@@ -367,7 +360,7 @@ fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 

@@ -9,6 +9,7 @@
 
 use crate::Result;
 use crate::error::{ensure_finite, ensure_positive};
+use crate::geometry::{dot, sub};
 use prism_camera::Ray;
 use serde::{Deserialize, Serialize};
 
@@ -166,14 +167,6 @@ impl UnitMap {
             (t1.min(l) - t0.max(0.0)).max(0.0)
         }
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 fn rot_z(a: f64) -> [[f64; 3]; 3] {
