@@ -15,6 +15,8 @@
 pub mod axis;
 pub mod bad_pixels;
 pub mod config;
+#[cfg(test)]
+mod detector_tests;
 pub mod hdf5;
 pub mod images;
 pub mod rings;
