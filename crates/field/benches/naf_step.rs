@@ -1,6 +1,9 @@
 //! One NAF training iteration on the Flex CPU backend, split into its phases: hash-grid encode,
 //! MLP (decode, sigmoid, loss), backward (the MLP's autodiff and the encoder's scatter), and the
 //! optimiser (Adam over the table and the MLP). Flex runs eagerly, so each phase's time is its own.
+//! It runs on the system allocator: glibc hands large freed buffers back to the kernel, so the
+//! phases here also pay page faults that `prism` (jemalloc, see `crates/cli/src/main.rs`) does
+//! not. Time whole runs (`prism recon configs/recon/naf.yaml`) before claiming a change's gain.
 //!
 //! `cargo bench -p prism-field --bench naf_step -- [points] [log2_table_size] [iterations]`
 //! (defaults 98 304 points = 1024 rays × 96 samples, table 2^16 per level as configs/recon/naf.yaml,

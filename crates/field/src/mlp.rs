@@ -9,10 +9,13 @@
 //!
 //! CPU ([`cpu_forward`], [`cpu_backward`]): tasks of [`TASK`] points on rayon. The backward
 //! recomputes its task's forward (the activations of 512 points stay in cache, none is stored
-//! between the passes). Every product sums a block of 32 (or 8) outputs in registers over its
-//! whole input, each output in input order, compiled for AVX2 where the CPU has it (no fused
-//! multiply-add, so the results are the same without it). Each task's parameter gradient is
-//! summed in task order, so results do not depend on the thread count either. Other backends
+//! between the passes); each worker reuses one `Scratch` for all its tasks. Every product is
+//! computed in tiles held in registers over its whole input (`tile`: 2 rows × 32 outputs,
+//! 4 × 8 or 8 × 1 on narrower layers). A tile's rows share each load of the other operand and
+//! keep 8 independent add chains in flight, and each output is summed in input order, compiled
+//! for AVX2 where the CPU has it (no fused multiply-add, so the results are the same without
+//! it). Each task's parameter gradient is summed in task order, so results do not depend on
+//! the thread count either. Other backends
 //! ([`by_ops`]) compose the same function from their own tensor ops.
 
 use prism_kernel::cpu::sum_partials;
@@ -67,8 +70,10 @@ impl MlpLayout {
         self.offsets(self.layers).0
     }
 
+    /// LeakyReLU as a product with its slope (`z · 1 = z` exactly), which compiles to a
+    /// select instead of a branch on the sign.
     fn leaky(&self, z: f32) -> f32 {
-        if z < 0.0 { z * self.slope } else { z }
+        z * self.leaky_slope(z)
     }
 
     fn leaky_slope(&self, z: f32) -> f32 {
@@ -76,36 +81,49 @@ impl MlpLayout {
     }
 }
 
-/// Runs a task function compiled for AVX2 where the kernels' run-time choice allows the wide
-/// variants ([`prism_kernel::simd::has_avx2_fma`], which tests and benchmarks can turn off),
-/// else for the build's baseline. Only AVX2 is enabled, not FMA: the same operations in the same
-/// order, so the results are identical either way.
+/// Defines `fn $name(args..)` that runs the task `$task` (`#[inline(always)]`, so its whole
+/// body is compiled into both variants) compiled for AVX2 where the kernels' run-time choice
+/// allows the wide variants ([`prism_kernel::simd::has_avx2_fma`], which tests and benchmarks
+/// can turn off), else for the build's baseline. Only AVX2 is enabled, not FMA: the same
+/// operations in the same order, so the results are identical either way.
 macro_rules! on_best_simd {
-    ($task:ident($($arg:expr),*)) => {{
-        #[cfg(target_arch = "x86_64")]
-        {
+    (fn $name:ident => $task:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?) => {
+        fn $name($($arg: $ty),*) $(-> $ret)? {
+            #[cfg(target_arch = "x86_64")]
             #[target_feature(enable = "avx2")]
-            fn wide(f: impl FnOnce()) {
-                f()
-            }
-            if prism_kernel::simd::has_avx2_fma() {
-                // SAFETY: `has_avx2_fma` confirmed that the CPU has AVX2 (and FMA).
-                let mut result = None;
-                unsafe { wide(|| result = Some($task($($arg),*))) };
-                result.expect("the task ran")
-            } else {
+            fn wide($($arg: $ty),*) $(-> $ret)? {
                 $task($($arg),*)
             }
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
+            #[cfg(target_arch = "x86_64")]
+            if prism_kernel::simd::has_avx2_fma() {
+                // SAFETY: `has_avx2_fma` confirmed that the CPU has AVX2 (and FMA).
+                return unsafe { wide($($arg),*) };
+            }
             $task($($arg),*)
         }
-    }};
+    };
 }
 
-/// Outputs per wide register block: 32 accumulators, four independent AVX (eight SSE) add
-/// chains, enough to hide the adds' latency; narrower layers use blocks of 8, then scalars.
+on_best_simd!(fn forward_best => forward_task(
+    layout: &MlpLayout,
+    enc: &[f32],
+    params: &[f32],
+    out: &mut [f32],
+    scratch: &mut Scratch,
+));
+
+on_best_simd!(fn backward_best => backward_task(
+    layout: &MlpLayout,
+    transposed: &[Vec<f32>],
+    enc: &[f32],
+    params: &[f32],
+    grad: &[f32],
+    d_enc: &mut [f32],
+    scratch: &mut Scratch,
+) -> Vec<f32>);
+
+/// Outputs per wide register block: 32 accumulators, four AVX (eight SSE) registers; narrower
+/// layers use blocks of 8, then scalars.
 const WIDE: usize = 32;
 const NARROW: usize = 8;
 
@@ -122,99 +140,201 @@ fn blocks(d_out: usize) -> impl Iterator<Item = (usize, usize)> {
         .chain((narrow..d_out).map(|j| (j, 1)))
 }
 
-/// `acc[t] += Σ_k x[k·x_stride] · w[k·w_stride + t]` for `k < n`, `t < B`: one block of
-/// outputs held in registers over a whole sum (each output summed in `k` order).
+/// `acc[r][t] += Σ_s x[r][s·x_stride] · w[s·w_stride + t]` for `s < n`, `t < B`, `r < R`: a
+/// tile of `R` rows × `B` outputs held in registers over a whole sum. The rows share each load
+/// of `w`, and the tile keeps `R·B` independent add chains in flight (one row alone waits on
+/// its adds' latency). Each output is summed in `s` order whatever `R` is.
 #[inline(always)]
-fn block_sum<const B: usize>(
-    acc: &mut [f32],
+fn tile<const B: usize, const R: usize>(
+    acc: &mut [[f32; B]; R],
     n: usize,
-    x: &[f32],
+    x: [&[f32]; R],
     x_stride: usize,
     w: &[f32],
     w_stride: usize,
 ) {
-    let mut a: [f32; B] = acc.try_into().expect("a block");
-    for k in 0..n {
-        let xk = x[k * x_stride];
-        let wk: &[f32; B] = w[k * w_stride..k * w_stride + B]
+    let mut a = *acc;
+    for s in 0..n {
+        let ws: &[f32; B] = w[s * w_stride..s * w_stride + B]
             .try_into()
             .expect("a block");
-        for (a, &wv) in a.iter_mut().zip(wk) {
-            *a += xk * wv;
+        for (a, x) in a.iter_mut().zip(&x) {
+            let xs = x[s * x_stride];
+            for (a, &wv) in a.iter_mut().zip(ws) {
+                *a += xs * wv;
+            }
         }
     }
-    acc.copy_from_slice(&a);
+    *acc = a;
 }
 
-/// [`block_sum`] on a block of [`blocks`]' widths (`acc.len()`).
+/// The accumulator tile of rows `r0 + r` (each `row` floats apart), outputs `j0..j0 + B`.
 #[inline(always)]
-fn block_sum_of(acc: &mut [f32], n: usize, x: &[f32], x_stride: usize, w: &[f32], w_stride: usize) {
-    match acc.len() {
-        WIDE => block_sum::<WIDE>(acc, n, x, x_stride, w, w_stride),
-        NARROW => block_sum::<NARROW>(acc, n, x, x_stride, w, w_stride),
-        _ => block_sum::<1>(acc, n, x, x_stride, w, w_stride),
+fn load<const B: usize, const R: usize>(
+    out: &[f32],
+    r0: usize,
+    row: usize,
+    j0: usize,
+) -> [[f32; B]; R] {
+    std::array::from_fn(|r| {
+        let at = (r0 + r) * row + j0;
+        out[at..at + B].try_into().expect("a block")
+    })
+}
+
+/// Writes a tile back where [`load`] read it.
+#[inline(always)]
+fn store<const B: usize, const R: usize>(
+    out: &mut [f32],
+    r0: usize,
+    row: usize,
+    j0: usize,
+    tile: &[[f32; B]; R],
+) {
+    for (r, t) in tile.iter().enumerate() {
+        let at = (r0 + r) * row + j0;
+        out[at..at + B].copy_from_slice(t);
     }
 }
 
-/// `out += x · w` for a row `x` `[d_in]` and `w` `[d_in, d_out]` (row-major).
+/// `out[i] += x[i] · w` for every row `i`: `x` `[m, d]`, `w` `[d, d_out]` (row-major), `out`
+/// `[m, d_out]` (`m` from `out`).
 #[inline(always)]
-fn row_times(x: &[f32], w: &[f32], out: &mut [f32]) {
-    let d_out = out.len();
+fn rows_times(x: &[f32], d: usize, w: &[f32], out: &mut [f32]) {
+    #[inline(always)]
+    fn by<const B: usize, const R: usize>(
+        x: &[f32],
+        d: usize,
+        w: &[f32],
+        out: &mut [f32],
+        j0: usize,
+    ) {
+        let d_out = w.len() / d.max(1);
+        let m = out.len() / d_out;
+        let mut i = 0;
+        while i + R <= m {
+            let mut t = load::<B, R>(out, i, d_out, j0);
+            tile(
+                &mut t,
+                d,
+                std::array::from_fn(|r| &x[(i + r) * d..]),
+                1,
+                &w[j0..],
+                d_out,
+            );
+            store(out, i, d_out, j0, &t);
+            i += R;
+        }
+        for i in i..m {
+            let mut t = load::<B, 1>(out, i, d_out, j0);
+            tile(&mut t, d, [&x[i * d..]], 1, &w[j0..], d_out);
+            store(out, i, d_out, j0, &t);
+        }
+    }
+    let d_out = out.len() / (x.len() / d.max(1)).max(1);
+    let w = &w[..d * d_out];
     for (j0, b) in blocks(d_out) {
-        block_sum_of(&mut out[j0..j0 + b], x.len(), x, 1, &w[j0..], d_out);
+        match b {
+            WIDE => by::<WIDE, 2>(x, d, w, out, j0),
+            NARROW => by::<NARROW, 4>(x, d, w, out, j0),
+            _ => by::<1, 8>(x, d, w, out, j0),
+        }
     }
 }
-
 /// `dw[k][j] += Σ_i x[i][k] · dz[i][j]`: a layer's weight gradient rows `dw` `[cols, d_out]`
 /// over a task's `m` points, from inputs `x` `[m, cols]` (row-major) and the pre-activation
 /// gradients `dz` `[m, d_out]`.
 #[inline(always)]
 fn input_times(x: &[f32], dz: &[f32], m: usize, dw: &mut [f32]) {
-    let d_out = dz.len() / m.max(1);
-    let cols = x.len() / m.max(1);
-    for (k, row) in dw.chunks_exact_mut(d_out).enumerate() {
-        for (j0, b) in blocks(d_out) {
-            block_sum_of(&mut row[j0..j0 + b], m, &x[k..], cols, &dz[j0..], d_out);
+    #[inline(always)]
+    fn by<const B: usize, const R: usize>(
+        x: &[f32],
+        dz: &[f32],
+        m: usize,
+        dw: &mut [f32],
+        j0: usize,
+    ) {
+        let d_out = dz.len() / m;
+        let cols = x.len() / m;
+        let rows = dw.len() / d_out;
+        let mut k = 0;
+        while k + R <= rows {
+            let mut t = load::<B, R>(dw, k, d_out, j0);
+            tile(
+                &mut t,
+                m,
+                std::array::from_fn(|r| &x[k + r..]),
+                cols,
+                &dz[j0..],
+                d_out,
+            );
+            store(dw, k, d_out, j0, &t);
+            k += R;
+        }
+        for k in k..rows {
+            let mut t = load::<B, 1>(dw, k, d_out, j0);
+            tile(&mut t, m, [&x[k..]], cols, &dz[j0..], d_out);
+            store(dw, k, d_out, j0, &t);
+        }
+    }
+    if m == 0 {
+        return;
+    }
+    let d_out = dz.len() / m;
+    for (j0, b) in blocks(d_out) {
+        match b {
+            WIDE => by::<WIDE, 2>(x, dz, m, dw, j0),
+            NARROW => by::<NARROW, 4>(x, dz, m, dw, j0),
+            _ => by::<1, 8>(x, dz, m, dw, j0),
         }
     }
 }
 
-/// A task's pre-activations `z[l]` `[n, d_out(l)]` and hidden activations `a[l]` `[n, width]`.
+/// A task's pre-activations `z[l]` `[n, d_out(l)]` and hidden activations `a[l]` `[n, width]`,
+/// and the backward's layer gradients `dz` and `dx`: buffers a worker reuses task after task.
 #[derive(Default)]
-struct Pass {
+struct Scratch {
     z: Vec<Vec<f32>>,
     a: Vec<Vec<f32>>,
+    dz: Vec<f32>,
+    dx: Vec<f32>,
 }
 
-impl Pass {
-    /// The forward pass of `n` points with encodings `enc` `[n, input]`.
+/// `buffer` holding `len` values, its contents unspecified (every caller writes before reading).
+fn sized(buffer: &mut Vec<f32>, len: usize) -> &mut [f32] {
+    buffer.resize(len, 0.0);
+    &mut buffer[..len]
+}
+
+impl Scratch {
+    /// The forward pass of `n` points with encodings `enc` `[n, input]`, into `z` and `a`.
     #[inline(always)]
-    fn run(layout: &MlpLayout, enc: &[f32], params: &[f32]) -> Pass {
+    fn run(&mut self, layout: &MlpLayout, enc: &[f32], params: &[f32]) {
         let (e, width) = (layout.input, layout.width);
         let n = enc.len() / e;
-        let mut pass = Pass::default();
+        self.z.resize_with(layout.layers, Vec::new);
+        self.a.resize_with(layout.layers - 1, Vec::new);
         for l in 0..layout.layers {
             let d_out = layout.d_out(l);
             let (wo, bo) = layout.offsets(l);
             let bias = &params[bo..bo + d_out];
-            let mut z = vec![0f32; n * d_out];
-            for (i, row) in z.chunks_exact_mut(d_out).enumerate() {
+            let z = sized(&mut self.z[l], n * d_out);
+            for row in z.chunks_exact_mut(d_out) {
                 row.copy_from_slice(bias);
-                if l > 0 {
-                    let prev = &pass.a[l - 1][i * width..(i + 1) * width];
-                    row_times(prev, &params[wo..], row);
-                }
-                if let Some(from) = layout.encoding_rows(l) {
-                    let enc_row = &enc[i * e..(i + 1) * e];
-                    row_times(enc_row, &params[wo + from * d_out..], row);
-                }
+            }
+            if l > 0 {
+                rows_times(&self.a[l - 1][..n * width], width, &params[wo..], z);
+            }
+            if let Some(from) = layout.encoding_rows(l) {
+                rows_times(enc, e, &params[wo + from * d_out..], z);
             }
             if l + 1 < layout.layers {
-                pass.a.push(z.iter().map(|&v| layout.leaky(v)).collect());
+                let a = sized(&mut self.a[l], n * d_out);
+                for (a, &z) in a.iter_mut().zip(z.iter()) {
+                    *a = layout.leaky(z);
+                }
             }
-            pass.z.push(z);
         }
-        pass
     }
 }
 
@@ -225,15 +345,23 @@ pub fn cpu_forward(layout: &MlpLayout, enc: &[f32], params: &[f32]) -> Vec<f32> 
     let mut out = vec![0f32; n];
     out.par_chunks_mut(TASK)
         .zip(enc.par_chunks(TASK * e))
-        .for_each(|(out, enc)| on_best_simd!(forward_task(layout, enc, params, out)));
+        .for_each_init(Scratch::default, |scratch, (out, enc)| {
+            forward_best(layout, enc, params, out, scratch)
+        });
     out
 }
 
 /// A task's outputs.
 #[inline(always)]
-fn forward_task(layout: &MlpLayout, enc: &[f32], params: &[f32], out: &mut [f32]) {
-    let pass = Pass::run(layout, enc, params);
-    out.copy_from_slice(&pass.z[layout.layers - 1]);
+fn forward_task(
+    layout: &MlpLayout,
+    enc: &[f32],
+    params: &[f32],
+    out: &mut [f32],
+    scratch: &mut Scratch,
+) {
+    scratch.run(layout, enc, params);
+    out.copy_from_slice(&scratch.z[layout.layers - 1][..out.len()]);
 }
 
 /// The gradients of `⟨grad, mlp(enc, params)⟩` (`grad` `[N]`): with respect to the encodings
@@ -266,8 +394,8 @@ pub fn cpu_backward(
         .par_chunks_mut(TASK * e)
         .zip(enc.par_chunks(TASK * e))
         .zip(grad.par_chunks(TASK))
-        .map(|((d_enc, enc), grad)| {
-            on_best_simd!(backward_task(layout, &transposed, enc, params, grad, d_enc))
+        .map_init(Scratch::default, |scratch, ((d_enc, enc), grad)| {
+            backward_best(layout, &transposed, enc, params, grad, d_enc, scratch)
         })
         .collect();
     (d_enc, sum_partials(task_params, layout.params()))
@@ -282,36 +410,38 @@ fn backward_task(
     params: &[f32],
     grad: &[f32],
     d_enc: &mut [f32],
+    scratch: &mut Scratch,
 ) -> Vec<f32> {
     let (e, width) = (layout.input, layout.width);
-    let pass = Pass::run(layout, enc, params);
+    scratch.run(layout, enc, params);
+    let Scratch { z, a, dz, dx } = scratch;
     let mut d_params = vec![0f32; layout.params()];
     let m = grad.len();
     // The output layer's pre-activation gradient is `grad` itself (one output).
-    let mut dz = grad.to_vec();
+    sized(dz, m).copy_from_slice(grad);
     for l in (0..layout.layers).rev() {
         let (d_in, d_out) = (layout.d_in(l), layout.d_out(l));
         let (wo, bo) = layout.offsets(l);
+        let dz_l = &dz[..m * d_out];
         // The weight's rows: the previous activation's, then the encoding's.
         let reads_enc = layout.encoding_rows(l);
         let (dw, db) = d_params[wo..bo + d_out].split_at_mut(bo - wo);
         let (dw_prev, dw_enc) = dw.split_at_mut(reads_enc.unwrap_or(d_in) * d_out);
         if l > 0 {
-            input_times(&pass.a[l - 1], &dz, m, dw_prev);
+            input_times(&a[l - 1][..m * width], dz_l, m, dw_prev);
         }
         if reads_enc.is_some() {
-            input_times(enc, &dz, m, dw_enc);
+            input_times(enc, dz_l, m, dw_enc);
         }
-        for g in dz.chunks_exact(d_out) {
+        for g in dz_l.chunks_exact(d_out) {
             for (b, &v) in db.iter_mut().zip(g) {
                 *b += v;
             }
         }
         // The input gradient, row by row: `dx = dz · Wᵀ`.
-        let mut dx = vec![0f32; m * d_in];
-        for (g, row) in dz.chunks_exact(d_out).zip(dx.chunks_exact_mut(d_in)) {
-            row_times(g, &transposed[l], row);
-        }
+        let dx = sized(dx, m * d_in);
+        dx.fill(0.0);
+        rows_times(dz_l, d_out, &transposed[l], dx);
         if let Some(from) = reads_enc {
             for (de, row) in d_enc.chunks_exact_mut(e).zip(dx.chunks_exact(d_in)) {
                 for (a, &b) in de.iter_mut().zip(&row[from..]) {
@@ -320,9 +450,8 @@ fn backward_task(
             }
         }
         if l > 0 {
-            let z = &pass.z[l - 1];
-            dz = vec![0f32; m * width];
-            for ((out, row), z) in dz
+            let z = &z[l - 1][..m * width];
+            for ((out, row), z) in sized(dz, m * width)
                 .chunks_exact_mut(width)
                 .zip(dx.chunks_exact(d_in))
                 .zip(z.chunks_exact(width))
@@ -456,6 +585,22 @@ mod tests {
         }
     }
 
+    /// A layout whose layers take every tile shape: 41 = 32 + 8 + 1 outputs (2-, 4- and 8-row
+    /// tiles), with 11, 41 and 52 inputs (every tile height leaves a remainder).
+    fn tiled() -> MlpLayout {
+        MlpLayout {
+            input: 11,
+            width: 41,
+            ..layout()
+        }
+    }
+
+    /// The test layouts with a parameter range that keeps activations of order one, and the
+    /// stride of the parameters the finite-difference test perturbs.
+    fn cases() -> [(MlpLayout, f32, usize); 2] {
+        [(layout(), 0.6, 3), (tiled(), 0.2, 23)]
+    }
+
     /// The MLP of the module docs, one point at a time, in f64. Each LeakyReLU's branch
     /// (below 0 or not) is read from `branches` when given, else chosen and recorded there: a
     /// finite difference with the branches of the unperturbed point differentiates the piece
@@ -514,59 +659,68 @@ mod tests {
 
     #[test]
     fn the_forward_is_the_mlp_of_the_docs() {
-        let l = layout();
-        // More points than a task, so tasks are split and joined.
-        let n = TASK + 37;
-        let enc = random(n * l.input, -1.0, 1.0, 11);
-        let params = random(l.params(), -0.6, 0.6, 12);
-        let out = cpu_forward(&l, &enc, &params);
-        let want = reference(&l, &enc, &params, &mut Vec::new(), false);
-        for (i, (a, b)) in out.iter().zip(want).enumerate() {
-            assert!((*a as f64 - b).abs() < 1e-5, "point {i}: {a} vs {b}");
+        for (l, range, _) in cases() {
+            // More points than a task, so tasks are split and joined; the last task's 37
+            // points leave a remainder under every tile height.
+            let n = TASK + 37;
+            let enc = random(n * l.input, -1.0, 1.0, 11);
+            let params = random(l.params(), -range, range, 12);
+            let out = cpu_forward(&l, &enc, &params);
+            let want = reference(&l, &enc, &params, &mut Vec::new(), false);
+            for (i, (a, b)) in out.iter().zip(want).enumerate() {
+                let tol = 1e-5 * b.abs().max(1.0);
+                assert!((*a as f64 - b).abs() < tol, "{l:?}, point {i}: {a} vs {b}");
+            }
         }
     }
 
     #[test]
     fn the_wide_and_baseline_variants_agree_exactly() {
         // Without FMA the AVX2 build performs the same operations in the same order.
-        let l = layout();
-        let n = TASK + 5;
-        let enc = random(n * l.input, -1.0, 1.0, 16);
-        let params = random(l.params(), -0.6, 0.6, 17);
-        let grad = random(n, -1.0, 1.0, 18);
-        let run = |baseline: bool| {
-            prism_kernel::simd::force_baseline(baseline);
-            let out = (
-                cpu_forward(&l, &enc, &params),
-                cpu_backward(&l, &enc, &params, &grad),
-            );
-            prism_kernel::simd::force_baseline(false);
-            out
-        };
-        assert_eq!(run(false), run(true));
+        for (l, range, _) in cases() {
+            let n = TASK + 5;
+            let enc = random(n * l.input, -1.0, 1.0, 16);
+            let params = random(l.params(), -range, range, 17);
+            let grad = random(n, -1.0, 1.0, 18);
+            let run = |baseline: bool| {
+                prism_kernel::simd::force_baseline(baseline);
+                let out = (
+                    cpu_forward(&l, &enc, &params),
+                    cpu_backward(&l, &enc, &params, &grad),
+                );
+                prism_kernel::simd::force_baseline(false);
+                out
+            };
+            assert_eq!(run(false), run(true), "{l:?}");
+        }
     }
 
     #[test]
     fn the_backward_matches_finite_differences() {
-        let l = layout();
+        for (l, range, stride) in cases() {
+            backward_matches_finite_differences(&l, range, stride);
+        }
+    }
+
+    fn backward_matches_finite_differences(l: &MlpLayout, range: f32, stride: usize) {
         let n = TASK + 9;
         let enc = random(n * l.input, -1.0, 1.0, 13);
-        let params = random(l.params(), -0.6, 0.6, 14);
+        let params = random(l.params(), -range, range, 14);
         let grad = random(n, -1.0, 1.0, 15);
-        let (d_enc, d_params) = cpu_backward(&l, &enc, &params, &grad);
+        let (d_enc, d_params) = cpu_backward(l, &enc, &params, &grad);
         // ⟨grad, f⟩ in f64 on the unperturbed point's branches, differentiated centrally over
         // the step actually taken in f32.
         let mut branches = Vec::new();
-        reference(&l, &enc, &params, &mut branches, false);
+        reference(l, &enc, &params, &mut branches, false);
         let loss = |enc: &[f32], params: &[f32]| -> f64 {
-            reference(&l, enc, params, &mut branches.clone(), true)
+            reference(l, enc, params, &mut branches.clone(), true)
                 .iter()
                 .zip(&grad)
                 .map(|(a, &g)| a * g as f64)
                 .sum()
         };
         let h = 1e-3f32;
-        for k in (0..params.len()).step_by(3) {
+        for k in (0..params.len()).step_by(stride) {
             let (mut up, mut down) = (params.clone(), params.clone());
             up[k] += h;
             down[k] -= h;
@@ -574,7 +728,7 @@ mod tests {
             let tol = 1e-4 * fd.abs().max(1.0);
             assert!(
                 (fd - d_params[k] as f64).abs() < tol,
-                "param {k}: fd {fd} vs {}",
+                "{l:?}, param {k}: fd {fd} vs {}",
                 d_params[k]
             );
         }
@@ -585,7 +739,7 @@ mod tests {
             let fd = (loss(&up, &params) - loss(&down, &params)) / (up[k] - down[k]) as f64;
             assert!(
                 (fd - d_enc[k] as f64).abs() < 2e-3,
-                "enc {k}: fd {fd} vs {}",
+                "{l:?}, enc {k}: fd {fd} vs {}",
                 d_enc[k]
             );
         }
