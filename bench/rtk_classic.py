@@ -46,30 +46,11 @@ def main():
         return
     vol = np.load(work / "volume.npy").astype(np.float32)
     analytic = np.load(work / "analytic.npy").astype(np.float32)
-    d, v = g["detector"], g["volume"]
+    d = g["detector"]
     n_views = len(g["angles_rad"])
 
-    geometry = rtk.ThreeDCircularProjectionGeometry.New()
-    for a in g["angles_rad"]:
-        geometry.AddProjection(g["dso"], g["dsd"], float(np.degrees(a)))
-
+    geometry, volume_image, projection_image = rtk_images(itk, rtk, g)
     image_type = itk.Image[itk.F, 3]
-    centre0 = [v["offset"][k] + (0.5 - n / 2) * s for k, (n, s) in
-               enumerate([(v["nx"], v["dx"]), (v["ny"], v["dy"]), (v["nz"], v["dz"])])]
-
-    def volume_image(arr):
-        # numpy [Z][Y][X] of RTK = Prism [x][z][y].
-        img = itk.image_from_array(np.ascontiguousarray(np.transpose(arr, (2, 0, 1))))
-        img.SetSpacing([v["dy"], v["dz"], v["dx"]])
-        img.SetOrigin([centre0[1], centre0[2], centre0[0]])
-        return img
-
-    def projection_image(arr):
-        img = itk.image_from_array(np.ascontiguousarray(arr[:, ::-1, :]))
-        img.SetSpacing([d["pitch_u"], d["pitch_v"], 1.0])
-        img.SetOrigin([(0.5 - d["cols"] / 2) * d["pitch_u"] + d.get("offset_u", 0.0),
-                       (0.5 - d["rows"] / 2) * d["pitch_v"] - d.get("offset_v", 0.0), 0.0])
-        return img
 
     # Joseph forward projection (fresh inputs per run: ITK pipelines may release their data).
     fp_times = []
@@ -113,6 +94,34 @@ def main():
         "fdk_max_s": max(fdk_times),
         "fdk_psnr": 10 * np.log10(1.0 / mse),
     }))
+
+
+def rtk_images(itk, rtk, g):
+    """RTK's circular geometry for the Prism cone geometry `g` (its JSON fields), and the makers
+    of RTK volume and projection images from Prism-ordered arrays (the mapping in the module
+    docs). Also used by python/tests/test_prism.py."""
+    d, v = g["detector"], g["volume"]
+    geometry = rtk.ThreeDCircularProjectionGeometry.New()
+    for a in g["angles_rad"]:
+        geometry.AddProjection(g["dso"], g["dsd"], float(np.degrees(a)))
+    centre0 = [v["offset"][k] + (0.5 - n / 2) * s for k, (n, s) in
+               enumerate([(v["nx"], v["dx"]), (v["ny"], v["dy"]), (v["nz"], v["dz"])])]
+
+    def volume_image(arr):
+        # numpy [Z][Y][X] of RTK = Prism [x][z][y].
+        img = itk.image_from_array(np.ascontiguousarray(np.transpose(arr, (2, 0, 1))))
+        img.SetSpacing([v["dy"], v["dz"], v["dx"]])
+        img.SetOrigin([centre0[1], centre0[2], centre0[0]])
+        return img
+
+    def projection_image(arr):
+        img = itk.image_from_array(np.ascontiguousarray(arr[:, ::-1, :]))
+        img.SetSpacing([d["pitch_u"], d["pitch_v"], 1.0])
+        img.SetOrigin([(0.5 - d["cols"] / 2) * d["pitch_u"] + d.get("offset_u", 0.0),
+                       (0.5 - d["rows"] / 2) * d["pitch_v"] - d.get("offset_v", 0.0), 0.0])
+        return img
+
+    return geometry, volume_image, projection_image
 
 
 if __name__ == "__main__":

@@ -1,0 +1,27 @@
+"""Type stubs of the native module (crates/py). Call it through the `prism` package, which checks
+arrays and builds the geometry JSON."""
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+F32 = npt.NDArray[np.float32]
+
+def project(volume: F32, geometry_json: str) -> F32: ...
+def backproject(projections: F32, geometry_json: str) -> F32: ...
+def fdk(projections: F32, geometry_json: str, window: str) -> F32: ...
+def sart(
+    projections: F32,
+    geometry_json: str,
+    iterations: int,
+    block_size: int,
+    relaxation: float,
+    relaxation_decay: float,
+    nonneg: bool,
+    order: str,
+    seed: int,
+) -> F32: ...
+def cgls(projections: F32, geometry_json: str, iterations: int) -> F32: ...
+def check_geometry(geometry_json: str) -> str: ...
+def geometry_from_tigre(tigre_json: str, angles_rad: list[float]) -> str: ...

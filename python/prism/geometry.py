@@ -1,0 +1,258 @@
+"""Scan geometries in Prism's conventions (docs/geometry.md), built from keyword arguments, from
+Prism's own ``geometry:`` fields (a ``scene.yaml``) or from TIGRE's ``geo`` fields."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any, Dict, Mapping, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _prism
+
+Triple = Union[float, Sequence[float]]
+
+
+def full_turn(views: int, start: float = 0.0) -> list:
+    """``views`` angles (radians) evenly spaced over a full turn from ``start``, the endpoint
+    excluded (``numpy.linspace(start, start + 2π, views + 1)[:-1]``)."""
+    return [start + 2.0 * math.pi * i / views for i in range(views)]
+
+
+def _zyx(name: str, value: Triple) -> Tuple[float, float, float]:
+    """A per-axis value given once (all axes) or as ``(z, y, x)``."""
+    if np.ndim(value) == 0:
+        v = float(value)  # type: ignore[arg-type]
+        return (v, v, v)
+    values = tuple(float(v) for v in value)  # type: ignore[union-attr]
+    if len(values) != 3:
+        raise ValueError(f"{name}: expected one number or three (z, y, x), got {len(values)}")
+    return values  # type: ignore[return-value]
+
+
+class Geometry:
+    """A complete scan: beam, distances, detector, volume grid and view angles.
+
+    Lengths are mm, angles radians. The fields are those of a ``scene.yaml``'s ``geometry:``
+    block (``beam``, ``dso``, ``dsd``, ``detector: {rows, cols, pitch_u, pitch_v, offset_u,
+    offset_v}``, ``volume: {nx, ny, nz, dx, dy, dz, offset: [x, y, z]}``, ``angles_rad``); they
+    are checked when the geometry is made, and an error names the field as the command line
+    does."""
+
+    def __init__(self, fields: Mapping[str, Any]):
+        self._fields: Dict[str, Any] = json.loads(_prism.check_geometry(json.dumps(_plain(fields))))
+
+    @classmethod
+    def cone(
+        cls,
+        *,
+        dso: float,
+        dsd: float,
+        rows: int,
+        cols: int,
+        pitch: Union[float, Tuple[float, float]],
+        volume: Sequence[int],
+        voxel: Triple,
+        angles: Sequence[float],
+        detector_offset: Tuple[float, float] = (0.0, 0.0),
+        volume_offset: Triple = 0.0,
+    ) -> "Geometry":
+        """A circular cone-beam scan.
+
+        ``dso``: source to rotation axis, ``dsd``: source to detector (mm). ``rows`` × ``cols``
+        pixels of ``pitch`` mm (one number, or ``(row pitch v, column pitch u)``);
+        ``detector_offset`` ``(u, v)`` shifts the detector centre within its plane (v points down
+        the image). ``volume`` is the array shape ``(nz, ny, nx)``; ``voxel`` and
+        ``volume_offset`` (the grid centre against the isocentre) are one number or ``(z, y,
+        x)``. ``angles``: radians, one per view."""
+        return cls(
+            _fields("cone", dso, dsd, rows, cols, pitch, volume, voxel, angles, detector_offset, volume_offset)
+        )
+
+    @classmethod
+    def parallel(
+        cls,
+        *,
+        rows: int,
+        cols: int,
+        pitch: Union[float, Tuple[float, float]],
+        volume: Sequence[int],
+        voxel: Triple,
+        angles: Sequence[float],
+        detector_offset: Tuple[float, float] = (0.0, 0.0),
+        volume_offset: Triple = 0.0,
+    ) -> "Geometry":
+        """A parallel-beam scan (synchrotron, or a fan-free approximation): rays along
+        ``(−cos θ, −sin θ, 0)``. The other arguments are :meth:`cone`'s. The rays start on a plane
+        twice the volume's reach before the axis, and the detector lies as far beyond it."""
+        _, dy, dx = _zyx("voxel", voxel)
+        _, ny, nx = (int(n) for n in volume)
+        _, oy, ox = _zyx("volume_offset", volume_offset)
+        reach = math.hypot(abs(ox) + nx * dx / 2, abs(oy) + ny * dy / 2)
+        dso = 2.0 * max(reach, 1e-3)
+        return cls(
+            _fields(
+                "parallel", dso, 2.0 * dso, rows, cols, pitch, volume, voxel, angles, detector_offset, volume_offset
+            )
+        )
+
+    @classmethod
+    def from_tigre(cls, geo: Any, angles: Sequence[float]) -> "Geometry":
+        """The geometry a TIGRE ``geo`` describes (a ``tigre.geometry`` object or a dict with its
+        fields), with ``angles`` in radians as TIGRE takes them.
+
+        Field mapping (TIGRE's orders are ``(z, y, x)`` and ``(v, u)``): ``DSO`` → ``dso``,
+        ``DSD`` → ``dsd``, ``nDetector`` → ``(rows, cols)``, ``dDetector`` → ``(pitch_v,
+        pitch_u)``, ``offDetector`` → ``(−offset_v, offset_u)`` (TIGRE's v points up),
+        ``nVoxel``/``dVoxel``/``offOrigin`` → the volume's ``(nz, ny, nx)``, ``(dz, dy, dx)``,
+        ``(z, y, x)`` offset, ``mode`` → ``beam``. ``sVoxel`` and ``sDetector``, when present,
+        must equal ``nVoxel·dVoxel`` and ``nDetector·dDetector``. TIGRE's projection row 0 is
+        the lowest z: convert its arrays with :func:`tigre_projections`."""
+        keys = ("mode", "DSD", "DSO", "nDetector", "dDetector", "offDetector", "nVoxel", "dVoxel", "offOrigin")
+        get = geo.get if isinstance(geo, Mapping) else (lambda k, d=None: getattr(geo, k, d))
+        fields = {k: _plain(get(k)) for k in keys if get(k) is not None}
+        for total, count, step in (("sVoxel", "nVoxel", "dVoxel"), ("sDetector", "nDetector", "dDetector")):
+            size = get(total)
+            if size is not None and count in fields and step in fields:
+                want = np.asarray(fields[count], float) * np.asarray(fields[step], float)
+                if not np.allclose(np.asarray(_plain(size), float), want, rtol=1e-6, atol=0.0):
+                    raise ValueError(
+                        f"TIGRE geometry: {total} {list(np.asarray(_plain(size), float))} is not "
+                        f"{count} × {step} {list(want)}"
+                    )
+        angles = [float(a) for a in np.asarray(angles, float).ravel()]
+        return cls(json.loads(_prism.geometry_from_tigre(json.dumps(fields), angles)))
+
+    def to_tigre(self) -> Dict[str, Any]:
+        """TIGRE's ``geo`` fields for this geometry (the inverse of :meth:`from_tigre`; angles
+        are :attr:`angles`). Circular scans only."""
+        if self._fields.get("vectors") is not None:
+            raise ValueError("to_tigre: a geometry with per-view vectors has no TIGRE form")
+        d, v = self._fields["detector"], self._fields["volume"]
+        n_det = [d["rows"], d["cols"]]
+        d_det = [d["pitch_v"], d["pitch_u"]]
+        n_vox = [v["nz"], v["ny"], v["nx"]]
+        d_vox = [v["dz"], v["dy"], v["dx"]]
+        return {
+            "mode": self._fields["beam"],
+            "DSO": self._fields["dso"],
+            "DSD": self._fields["dsd"],
+            "nDetector": n_det,
+            "dDetector": d_det,
+            "sDetector": [n * s for n, s in zip(n_det, d_det)],
+            "offDetector": [-d.get("offset_v", 0.0), d.get("offset_u", 0.0)],
+            "nVoxel": n_vox,
+            "dVoxel": d_vox,
+            "sVoxel": [n * s for n, s in zip(n_vox, d_vox)],
+            "offOrigin": list(reversed(v.get("offset", [0.0, 0.0, 0.0]))),
+        }
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The geometry's fields (a copy), as a ``scene.yaml``'s ``geometry:`` block holds them."""
+        return json.loads(json.dumps(self._fields))
+
+    def to_json(self) -> str:
+        """The fields as JSON (what the native module reads)."""
+        return json.dumps(self._fields)
+
+    @property
+    def beam(self) -> str:
+        """``cone`` or ``parallel``."""
+        return self._fields["beam"]
+
+    @property
+    def angles(self) -> list:
+        """View angles, radians."""
+        return list(self._fields["angles_rad"])
+
+    @property
+    def views(self) -> int:
+        return len(self._fields["angles_rad"])
+
+    @property
+    def volume_shape(self) -> Tuple[int, int, int]:
+        """``(nz, ny, nx)``: the shape of a volume array."""
+        v = self._fields["volume"]
+        return (v["nz"], v["ny"], v["nx"])
+
+    @property
+    def projection_shape(self) -> Tuple[int, int, int]:
+        """``(views, rows, cols)``: the shape of a projection array."""
+        d = self._fields["detector"]
+        return (self.views, d["rows"], d["cols"])
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Geometry) and self._fields == other._fields
+
+    def __repr__(self) -> str:
+        return (
+            f"Geometry({self.beam}, {self.views} views, detector {self.projection_shape[1:]}, "
+            f"volume {self.volume_shape})"
+        )
+
+
+def tigre_projections(projections: np.ndarray) -> np.ndarray:
+    """TIGRE's projections ``[angle][v][u]`` (row 0 the lowest z) in Prism's orientation (row 0
+    the highest z), float32 and C-contiguous; the map is its own inverse."""
+    return np.ascontiguousarray(np.asarray(projections)[:, ::-1, :], dtype=np.float32)
+
+
+def _fields(
+    beam: str,
+    dso: float,
+    dsd: float,
+    rows: int,
+    cols: int,
+    pitch: Union[float, Tuple[float, float]],
+    volume: Sequence[int],
+    voxel: Triple,
+    angles: Sequence[float],
+    detector_offset: Tuple[float, float],
+    volume_offset: Triple,
+) -> Dict[str, Any]:
+    if np.ndim(pitch) == 0:
+        pitch_v = pitch_u = float(pitch)  # type: ignore[arg-type]
+    else:
+        pitch_v, pitch_u = (float(p) for p in pitch)  # type: ignore[union-attr]
+    shape = [int(n) for n in volume]
+    if len(shape) != 3:
+        raise ValueError(f"volume: expected the array shape (nz, ny, nx), got {tuple(volume)}")
+    dz, dy, dx = _zyx("voxel", voxel)
+    oz, oy, ox = _zyx("volume_offset", volume_offset)
+    return {
+        "beam": beam,
+        "dso": float(dso),
+        "dsd": float(dsd),
+        "detector": {
+            "rows": int(rows),
+            "cols": int(cols),
+            "pitch_u": pitch_u,
+            "pitch_v": pitch_v,
+            "offset_u": float(detector_offset[0]),
+            "offset_v": float(detector_offset[1]),
+        },
+        "volume": {
+            "nx": shape[2],
+            "ny": shape[1],
+            "nz": shape[0],
+            "dx": dx,
+            "dy": dy,
+            "dz": dz,
+            "offset": [ox, oy, oz],
+        },
+        "angles_rad": [float(a) for a in np.asarray(angles, float).ravel()],
+    }
+
+
+def _plain(value: Any) -> Any:
+    """NumPy scalars and arrays (TIGRE stores its fields so) as plain Python numbers and lists."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
