@@ -28,16 +28,20 @@ from __future__ import annotations
 from . import _prism
 from .arrays import check_array
 from .geometry import Geometry, full_turn, tigre_projections
+from .run import Run, load_run, reconstruct
 
 __version__ = _prism.__version__
 
 __all__ = [
     "Geometry",
+    "Run",
     "backproject",
     "cgls",
     "fdk",
     "full_turn",
+    "load_run",
     "project",
+    "reconstruct",
     "sart",
     "tigre_projections",
 ]

@@ -1,6 +1,8 @@
 """Type stubs of the native module (crates/py). Call it through the `prism` package, which checks
 arrays and builds the geometry JSON."""
 
+from typing import Any, Callable, Optional
+
 import numpy as np
 import numpy.typing as npt
 
@@ -25,3 +27,14 @@ def sart(
 def cgls(projections: F32, geometry_json: str, iterations: int) -> F32: ...
 def check_geometry(geometry_json: str) -> str: ...
 def geometry_from_tigre(tigre_json: str, angles_rad: list[float]) -> str: ...
+def reconstruct(
+    projections: F32,
+    geometry_json: str,
+    config_yaml: str,
+    channels_json: str,
+    out: str,
+    availability: Optional[npt.NDArray[np.bool_]] = None,
+    references: Optional[F32] = None,
+    force: bool = False,
+    callback: Optional[Callable[[str, Any, Any], None]] = None,
+) -> str: ...

@@ -7,6 +7,8 @@
 //! A geometry crosses as the JSON of Prism's `Geometry` (the `geometry:` block of a `scene.yaml`),
 //! so its errors name the same fields as the CLI's. Compute runs with the GIL released.
 
+mod run;
+
 use ndarray::{Array3, ArrayView3};
 use numpy::{PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray3, PyUntypedArrayMethods};
 use prism_domain::geometry::{Geometry, TigreGeometry};
@@ -17,12 +19,12 @@ use pyo3::prelude::*;
 
 /// A Prism error as the Python exception the package raises: bad input is a `ValueError` with
 /// the CLI's message.
-fn value_error(e: impl std::fmt::Display) -> PyErr {
+pub(crate) fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
 /// The geometry in `json` (Prism's `Geometry` fields), validated.
-fn geometry(json: &str) -> PyResult<Geometry> {
+pub(crate) fn geometry(json: &str) -> PyResult<Geometry> {
     let g: Geometry =
         serde_json::from_str(json).map_err(|e| value_error(format!("geometry: {e}")))?;
     g.validate().map_err(value_error)?;
@@ -172,6 +174,7 @@ fn _prism(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(fdk, m)?)?;
     m.add_function(wrap_pyfunction!(sart, m)?)?;
     m.add_function(wrap_pyfunction!(cgls, m)?)?;
+    m.add_function(wrap_pyfunction!(run::reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(check_geometry, m)?)?;
     m.add_function(wrap_pyfunction!(geometry_from_tigre, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
