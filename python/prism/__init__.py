@@ -28,7 +28,7 @@ from __future__ import annotations
 from . import _prism
 from .arrays import check_array
 from .geometry import Geometry, full_turn, tigre_projections
-from .run import Run, load_run, reconstruct
+from .run import Run, load_run, query, reconstruct
 
 __version__ = _prism.__version__
 
@@ -41,6 +41,7 @@ __all__ = [
     "full_turn",
     "load_run",
     "project",
+    "query",
     "reconstruct",
     "sart",
     "tigre_projections",

@@ -38,3 +38,11 @@ def reconstruct(
     force: bool = False,
     callback: Optional[Callable[[str, Any, Any], None]] = None,
 ) -> str: ...
+def query(
+    run_dir: str,
+    coordinate: Optional[float] = None,
+    tau: Optional[float] = None,
+    kev: Optional[float] = None,
+    projections: bool = False,
+    extrapolate: bool = False,
+) -> tuple[F32, Optional[str], str]: ...

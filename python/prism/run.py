@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 import tempfile
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Union
@@ -122,6 +123,38 @@ def reconstruct(
     if temporary:
         run.dir = None
     return run
+
+
+def query(
+    run: Union[Run, str, Path],
+    kev: Optional[float] = None,
+    coordinate: Optional[float] = None,
+    tau: Optional[float] = None,
+    projections: bool = False,
+    extrapolate: bool = False,
+) -> np.ndarray:
+    """A trained spectral run (``4dsg``, ``4dsg-stage1``; a :class:`Run` or its directory) at
+    exactly one point of its spectral axis, as ``prism query`` answers it, without further
+    optimisation.
+
+    * ``kev``: a virtual monoenergetic image at that photon energy: from the basis head when the
+      run has one (any energy of the attenuation table; a warning outside the trained channels'
+      energies), else the curves of a run whose channels are energies;
+    * ``coordinate``: a point in the run's spectral unit (keV, kVp, λ, …);
+    * ``tau``: the normalised coordinate (0 and 1 are the first and last channel).
+
+    Returns the volume ``[z][y][x]`` (μ, mm⁻¹) or, with ``projections``, the line integrals
+    ``[view][row][col]`` at every view of the run's geometry. ``extrapolate`` allows a
+    coordinate outside the observed channels."""
+    d = run.dir if isinstance(run, Run) else Path(run)
+    if d is None:
+        raise ValueError("query: the run was temporary; reconstruct(..., out=DIR) keeps its model")
+    data, warning, _summary = _prism.query(
+        str(d), coordinate, tau, kev, bool(projections), bool(extrapolate)
+    )
+    if warning:
+        warnings.warn(warning, stacklevel=2)
+    return data
 
 
 def _channels(channels: Optional[Sequence[Any]], n: int) -> List[dict]:

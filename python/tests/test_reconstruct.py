@@ -116,3 +116,24 @@ def test_ctrl_c_stops_a_training_run(scene, tmp_path):
     # The state is saved for --resume, as the command line's SIGINT does; nothing is published.
     assert (tmp_path / "long.resume.safetensors").is_file()
     assert not (tmp_path / "long").exists()
+
+
+def test_a_trained_spectral_run_answers_queries(scene, tmp_path):
+    g, p, refs = scene
+    run = prism.reconstruct(p, g, method="4dsg", config=SHORT["4dsg"], channels=KEV, out=tmp_path / "sg")
+    at40 = prism.query(run, kev=40)
+    # At an observed channel the curves are that channel's densities: the run's own volume.
+    assert np.allclose(at40, run.volumes["40keV"], atol=1e-6)
+    between = prism.query(tmp_path / "sg", coordinate=55)
+    lo, hi = run.volumes["70keV"], run.volumes["40keV"]
+    # Linear in the raw densities between 40 and 70 keV: the softplus keeps it between them.
+    assert between.shape == g.volume_shape
+    assert np.all(between <= np.maximum(lo, hi) + 1e-6) and np.all(between >= np.minimum(lo, hi) - 1e-6)
+    assert prism.query(run, tau=0.0, projections=True).shape == g.projection_shape
+    with pytest.raises(ValueError, match="extrapolat"):
+        prism.query(run, kev=120)
+    assert np.isfinite(prism.query(run, kev=120, extrapolate=True)).all()
+    with pytest.raises(ValueError, match="exactly one"):
+        prism.query(run, kev=40, tau=0.5)
+    with pytest.raises(ValueError, match="temporary"):
+        prism.query(prism.reconstruct(p, g, method="fdk", channels=KEV))

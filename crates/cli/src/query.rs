@@ -11,8 +11,7 @@ use prism_domain::scene::npy::npy_bytes;
 use prism_domain::staged;
 use prism_recon::device::cpu_device;
 use prism_recon::gaussians::io::LoadedModel;
-use prism_recon::methods::fourdsg::query::BasisModel;
-use prism_recon::methods::fourdsg::query::{Query, QueryAt};
+use prism_recon::methods::fourdsg::query::{Ask, SpectralModel};
 use prism_recon::record::RunDir;
 use std::path::{Path, PathBuf};
 
@@ -76,78 +75,29 @@ fn footprint(loaded: &LoadedModel, projections: bool) -> anyhow::Result<Footprin
 pub fn run(args: Args) -> anyhow::Result<()> {
     let path = RunDir::spectral_model(&args.run_dir)?;
     let what = format!("querying {}", args.run_dir.display());
-    if let Some(kev) = args.kev
-        && let Some(b) = BasisModel::open(&path, &cpu_device())?
-    {
-        if !args
-            .memory
-            .proceed(&path, &what, &footprint(&b.loaded, args.projections)?)?
-        {
-            return Ok(());
-        }
-        let data = if args.projections {
-            b.vmi_projections(kev)?
-        } else {
-            b.vmi(kev)?
-        };
-        write(&args.out, &data, args.force)?;
-        if b.extrapolates(kev) {
-            eprintln!(
-                "warning: {kev} keV lies outside the trained channels' energies ({:?} keV): the \
-                 image extrapolates the basis model, whose error grows with the distance",
-                b.meta.channel_kev
-            );
-        }
-        let names: Vec<&str> = b.meta.materials.iter().map(|m| m.name()).collect();
-        eprintln!(
-            "{kev} keV from the basis {} → {} {:?}",
-            names.join(", "),
-            args.out.display(),
-            data.dim()
-        );
-        return Ok(());
-    }
-    let q = Query::open(&path, &cpu_device())?;
-    if !args
-        .memory
-        .proceed(&path, &what, &footprint(&q.loaded, args.projections)?)?
-    {
-        return Ok(());
-    }
-    let at = match (args.coordinate, args.tau, args.kev) {
-        (Some(c), _, _) => QueryAt::Coordinate(c),
-        (None, Some(t), _) => QueryAt::Tau(t),
-        (None, None, Some(kev)) => {
-            if !q.loaded.info.monoenergetic {
-                anyhow::bail!(
-                    "--kev {kev}: this run has no basis head and its channels are not all \
-                     monoenergetic (axis in {}), so no coordinate is a photon energy; train with \
-                     stage2.basis for monoenergetic images, or query --coordinate",
-                    q.loaded.info.unit
-                );
-            }
-            QueryAt::Coordinate(kev)
-        }
+    let ask = match (args.coordinate, args.tau, args.kev) {
+        (Some(c), _, _) => Ask::Coordinate(c),
+        (None, Some(t), _) => Ask::Tau(t),
+        (None, None, Some(kev)) => Ask::Kev(kev),
         (None, None, None) => anyhow::bail!("give --coordinate, --tau or --kev"),
     };
-    let data = if args.projections {
-        q.projections(at, args.extrapolate)?
-    } else {
-        q.volume(at, args.extrapolate)?
-    };
-    write(&args.out, &data, args.force)?;
-    let info = &q.loaded.info;
+    let model = SpectralModel::open(&path, ask, &cpu_device())?;
+    if !args
+        .memory
+        .proceed(&path, &what, &footprint(model.loaded(), args.projections)?)?
+    {
+        return Ok(());
+    }
+    let answer = model.answer(ask, args.projections, args.extrapolate)?;
+    write(&args.out, &answer.data, args.force)?;
+    if let Some(w) = &answer.warning {
+        eprintln!("warning: {w}");
+    }
     eprintln!(
-        "τ = {:.4} (observed: {}) → {} {:?}",
-        q.tau(at),
-        info.channels
-            .iter()
-            .zip(&info.tau)
-            .map(|(l, t)| format!("{l} τ={t:.3}"))
-            .collect::<Vec<_>>()
-            .join(", "),
+        "{} → {} {:?}",
+        answer.summary,
         args.out.display(),
-        data.dim()
+        answer.data.dim()
     );
     Ok(())
 }

@@ -7,6 +7,7 @@
 //! A geometry crosses as the JSON of Prism's `Geometry` (the `geometry:` block of a `scene.yaml`),
 //! so its errors name the same fields as the CLI's. Compute runs with the GIL released.
 
+mod query;
 mod run;
 
 use ndarray::{Array3, ArrayView3};
@@ -44,7 +45,7 @@ fn view<'a>(name: &str, a: &'a PyReadonlyArray3<'_, f32>) -> PyResult<ArrayView3
 }
 
 /// `values` as a new NumPy array, without a copy.
-fn to_numpy(py: Python<'_>, values: Array3<f32>) -> PyResult<Bound<'_, PyArray3<f32>>> {
+pub(crate) fn to_numpy(py: Python<'_>, values: Array3<f32>) -> PyResult<Bound<'_, PyArray3<f32>>> {
     let shape = values.dim();
     let (flat, offset) = values.into_raw_vec_and_offset();
     debug_assert!(offset.unwrap_or(0) == 0);
@@ -175,6 +176,7 @@ fn _prism(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sart, m)?)?;
     m.add_function(wrap_pyfunction!(cgls, m)?)?;
     m.add_function(wrap_pyfunction!(run::reconstruct, m)?)?;
+    m.add_function(wrap_pyfunction!(query::query, m)?)?;
     m.add_function(wrap_pyfunction!(check_geometry, m)?)?;
     m.add_function(wrap_pyfunction!(geometry_from_tigre, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

@@ -4,9 +4,11 @@
 //! interpolating Δu, since u⁽ᶜ⁾ does not depend on τ), then voxelize or render. No optimisation.
 //! Outside the observed grid the query is refused unless extrapolation is asked for.
 
+pub mod answer;
 pub mod basis;
 pub mod holdout;
 
+pub use answer::{Answer, Ask, SpectralModel};
 pub use basis::{BASIS_FILE, BasisModel};
 pub use holdout::{Holdout, HoldoutScore, Predictor, predict_holdout};
 
