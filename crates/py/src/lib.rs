@@ -6,6 +6,10 @@
 //! checked array in place (no copy) and hands results back without a copy (`PyArray::from_vec`).
 //! A geometry crosses as the JSON of Prism's `Geometry` (the `geometry:` block of a `scene.yaml`),
 //! so its errors name the same fields as the CLI's. Compute runs with the GIL released.
+//!
+//! Here: the classic operators (`project`, `backproject`, `fdk`, `sart`, `cgls`) and the geometry
+//! checks; [`run`]: any method through the run pipeline (`reconstruct`); [`query`]: a trained
+//! spectral run at any point of its axis.
 
 mod query;
 mod run;
@@ -44,8 +48,13 @@ fn view<'a>(name: &str, a: &'a PyReadonlyArray3<'_, f32>) -> PyResult<ArrayView3
     ArrayView3::from_shape(shape, values).map_err(value_error)
 }
 
-/// `values` as a new NumPy array, without a copy.
+/// `values` as a new NumPy array, without a copy (a strided array is made contiguous first).
 pub(crate) fn to_numpy(py: Python<'_>, values: Array3<f32>) -> PyResult<Bound<'_, PyArray3<f32>>> {
+    let values = if values.is_standard_layout() {
+        values
+    } else {
+        values.as_standard_layout().into_owned()
+    };
     let shape = values.dim();
     let (flat, offset) = values.into_raw_vec_and_offset();
     debug_assert!(offset.unwrap_or(0) == 0);
