@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from . import _prism
 from .arrays import check_array
-from .geometry import Geometry, full_turn, tigre_projections
+from .geometry import Geometry, astra_image, astra_sinogram, full_turn, tigre_projections, to_astra_image
 from .run import Run, load_run, query, reconstruct
 
 __version__ = _prism.__version__
@@ -35,6 +35,8 @@ __version__ = _prism.__version__
 __all__ = [
     "Geometry",
     "Run",
+    "astra_image",
+    "astra_sinogram",
     "backproject",
     "cgls",
     "fdk",
@@ -45,6 +47,7 @@ __all__ = [
     "reconstruct",
     "sart",
     "tigre_projections",
+    "to_astra_image",
 ]
 
 import numpy as _np

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any, Dict, Mapping, Sequence, Tuple, Union
+from typing import Any, Dict, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -124,6 +124,118 @@ class Geometry:
         angles = [float(a) for a in np.asarray(angles, float).ravel()]
         return cls(json.loads(_prism.geometry_from_tigre(json.dumps(fields), angles)))
 
+    @classmethod
+    def fan(
+        cls,
+        *,
+        dso: float,
+        dsd: float,
+        cols: int,
+        pitch: float,
+        slice: Sequence[int],
+        voxel: Union[float, Sequence[float]],
+        angles: Sequence[float],
+        detector_offset: float = 0.0,
+        slice_offset: Sequence[float] = (0.0, 0.0),
+    ) -> "Geometry":
+        """A 2-D fan beam on a flat detector line (``cols`` pixels of ``pitch`` mm, shifted
+        ``detector_offset`` mm along u), reconstructing one slice of shape ``slice`` ``(ny,
+        nx)`` with ``voxel`` one number or ``(dy, dx)`` and centre ``slice_offset`` ``(y, x)``.
+
+        Stored as Prism stores fans (docs/geometry.md): the middle row of a cone beam, one
+        detector row over a one-voxel-thick volume. Volumes are ``[1][y][x]``, projections
+        ``[view][1][col]``."""
+        ny, nx = (int(n) for n in slice)
+        dy, dx = (float(voxel),) * 2 if np.ndim(voxel) == 0 else (float(v) for v in voxel)  # type: ignore[arg-type]
+        oy, ox = (float(o) for o in slice_offset)
+        fields = {
+            "dso": float(dso), "dsd": float(dsd), "cols": int(cols), "pitch": float(pitch),
+            "offset_u": float(detector_offset), "nx": nx, "ny": ny, "dx": dx, "dy": dy, "offset": [ox, oy],
+        }
+        angles = [float(a) for a in np.asarray(angles, float).ravel()]
+        return cls(json.loads(_prism.geometry_from_fan(json.dumps(fields), angles)))
+
+    @classmethod
+    def from_vectors(
+        cls,
+        beam: str,
+        vectors: Any,
+        *,
+        cols: int,
+        volume: Sequence[int],
+        voxel: Triple,
+        rows: Optional[int] = None,
+        volume_offset: Triple = 0.0,
+        angles: Optional[Sequence[float]] = None,
+    ) -> "Geometry":
+        """Every view placed by a row of ASTRA's vectors (docs/geometry.md, "Per-view
+        vectors"): ``beam`` ``cone`` or ``parallel`` with 12 numbers per view (``cone_vec``,
+        ``parallel3d_vec``: source or ray, detector centre, u, v; v one row step, row 0 first)
+        on ``rows`` × ``cols`` pixels, or ``fan`` with 6 (``fanflat_vec``: source, detector
+        centre, u, in the plane z = 0) on one row and a one-voxel-thick ``volume``. ``volume``,
+        ``voxel`` and ``volume_offset`` are :meth:`cone`'s; ``angles`` (the nominal view angles)
+        are derived from the vectors when omitted."""
+        rows_of = np.asarray(vectors, dtype=float)
+        if rows_of.ndim != 2:
+            raise ValueError(f"vectors: expected [views, 12] or [views, 6], got shape {rows_of.shape}")
+        nz, ny, nx = (int(n) for n in volume)
+        dz, dy, dx = _zyx("voxel", voxel)
+        oz, oy, ox = _zyx("volume_offset", volume_offset)
+        spec = {
+            "beam": beam, "cols": int(cols),
+            "volume": {"nx": nx, "ny": ny, "nz": nz, "dx": dx, "dy": dy, "dz": dz, "offset": [ox, oy, oz]},
+        }
+        if rows is not None:
+            spec["rows"] = int(rows)
+        if angles is not None:
+            angles = [float(a) for a in np.asarray(angles, float).ravel()]
+        return cls(json.loads(_prism.geometry_from_vectors(json.dumps(spec), rows_of.tolist(), angles)))
+
+    @classmethod
+    def from_astra(cls, proj_geom: Mapping[str, Any], vol_geom: Mapping[str, Any]) -> "Geometry":
+        """The geometry of ASTRA's 2-D fan beam: ``proj_geom`` of type ``fanflat`` or
+        ``fanflat_vec`` (``astra.create_proj_geom``) and a 2-D ``vol_geom``
+        (``astra.create_vol_geom``), lengths in mm.
+
+        ASTRA's conventions, checked against its CPU projector (``line_fanflat``, tested): at
+        angle θ a ``fanflat`` source sits at ``DSO·(sin θ, −cos θ)``, the detector centre at
+        ``ODD·(−sin θ, cos θ)``, column steps along ``w·(cos θ, sin θ)`` (as ``astra.geom_2vec``
+        writes them); an image's row 0 is the *largest* y and column 0 the smallest x. Convert
+        arrays with :func:`astra_image` and :func:`astra_sinogram`. ASTRA's 3-D geometries
+        (``cone``, ``parallel3d`` and their ``_vec`` forms) are not mapped: their volume axes
+        could not be checked without a GPU (pass their vectors to :meth:`from_vectors` after
+        checking the orientation on your data)."""
+        kind = proj_geom.get("type")
+        if kind == "fanflat":
+            angles = np.asarray(proj_geom["ProjectionAngles"], float).ravel()
+            dso = float(proj_geom["DistanceOriginSource"])
+            odd = float(proj_geom["DistanceOriginDetector"])
+            w = float(proj_geom["DetectorWidth"])
+            s, c = np.sin(angles), np.cos(angles)
+            vectors = np.stack([dso * s, -dso * c, -odd * s, odd * c, w * c, w * s], axis=1)
+            cols = int(proj_geom["DetectorCount"])
+        elif kind == "fanflat_vec":
+            vectors = np.asarray(proj_geom["Vectors"], float)
+            cols = int(proj_geom["DetectorCount"])
+        else:
+            raise ValueError(
+                f"from_astra: proj_geom type {kind!r} is not mapped (fanflat and fanflat_vec are)"
+            )
+        opt = vol_geom.get("option", vol_geom)
+        ny, nx = int(vol_geom["GridRowCount"]), int(vol_geom["GridColCount"])
+        x0, x1 = float(opt["WindowMinX"]), float(opt["WindowMaxX"])
+        y0, y1 = float(opt["WindowMinY"]), float(opt["WindowMaxY"])
+        dx, dy = (x1 - x0) / nx, (y1 - y0) / ny
+        # The slice as thick as a column seen at the axis (no ray leaves z = 0, so any thickness
+        # gives the same line integrals), as Prism's own fan geometry.
+        src, det = vectors[0, 0:2], vectors[0, 2:4]
+        pitch = float(np.hypot(*vectors[0, 4:6]))
+        dz = pitch * float(np.hypot(*src)) / float(np.hypot(*(det - src)))
+        return cls.from_vectors(
+            "fan", vectors, cols=cols, volume=(1, ny, nx), voxel=(dz, dy, dx),
+            volume_offset=(0.0, (y0 + y1) / 2, (x0 + x1) / 2),
+        )
+
     def to_tigre(self) -> Dict[str, Any]:
         """TIGRE's ``geo`` fields for this geometry (the inverse of :meth:`from_tigre`; angles
         are :attr:`angles`). Circular scans only."""
@@ -190,6 +302,24 @@ class Geometry:
             f"Geometry({self.beam}, {self.views} views, detector {self.projection_shape[1:]}, "
             f"volume {self.volume_shape})"
         )
+
+
+def astra_image(image: np.ndarray) -> np.ndarray:
+    """An ASTRA 2-D image ``[row][col]`` (row 0 the largest y) as a Prism fan volume
+    ``[1][y][x]`` (y increasing), float32 and C-contiguous."""
+    return np.ascontiguousarray(np.asarray(image)[None, ::-1, :], dtype=np.float32)
+
+
+def to_astra_image(volume: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`astra_image`: a Prism fan volume ``[1][y][x]`` as ASTRA's
+    ``[row][col]``."""
+    return np.ascontiguousarray(np.asarray(volume)[0, ::-1, :], dtype=np.float32)
+
+
+def astra_sinogram(sinogram: np.ndarray) -> np.ndarray:
+    """An ASTRA 2-D sinogram ``[angle][detector]`` as Prism fan projections ``[view][1][col]``
+    (the same column order)."""
+    return np.ascontiguousarray(np.asarray(sinogram)[:, None, :], dtype=np.float32)
 
 
 def tigre_projections(projections: np.ndarray) -> np.ndarray:

@@ -220,3 +220,56 @@ def test_project_and_fdk_agree_with_rtk():
     # their padding and kernel sampling (measured 1.4e-3).
     assert fp_diff < 1e-5, fp_diff
     assert fdk_diff < 5e-3, fdk_diff
+
+
+def astra_or_skip():
+    try:
+        import astra
+    except Exception as e:  # noqa: BLE001 - any import failure means ASTRA is absent
+        if os.environ.get("PRISM_REQUIRE_ASTRA") == "1":
+            raise
+        pytest.skip(f"ASTRA not importable ({e}); pip install astra-toolbox")
+    return astra
+
+
+def test_astra_fan_beams_project_as_astra_does():
+    astra = astra_or_skip()
+    angles = np.linspace(0, 2 * np.pi, 30, endpoint=False) + 0.2
+    pg = astra.create_proj_geom("fanflat", 1.3, 48, angles, 200.0, 100.0)
+    vg = astra.create_vol_geom(32, 40, -20.0, 20.0, -16.0, 16.0)  # 32 rows (y) × 40 columns (x)
+    yy, xx = np.mgrid[0:32, 0:40]
+    # Two smooth blobs of different size and weight, off every axis of symmetry.
+    image = (
+        np.exp(-((xx - 28) ** 2 + (yy - 8) ** 2) / 18.0)
+        + 0.5 * np.exp(-((xx - 10) ** 2 + (yy - 20) ** 2) / 32.0)
+    ).astype(np.float32)
+    _, sinogram = astra.create_sino(image, astra.create_projector("strip_fanflat", pg, vg))
+    theirs = prism.astra_sinogram(sinogram)
+    g = prism.Geometry.from_astra(pg, vg)
+    assert g.volume_shape == (1, 32, 40) and g.projection_shape == (30, 1, 48)
+    ours = prism.project(prism.astra_image(image), g)
+    diff = np.linalg.norm(ours - theirs) / np.linalg.norm(theirs)
+    # ASTRA's strip projector (pixel areas) against Joseph's interpolation on smooth blobs:
+    # measured 0.21 %. A flipped image, a mirrored detector or a turned angle gives ~100 %.
+    assert diff < 0.01, diff
+    unflipped = prism.project(np.ascontiguousarray(image[None]), g)
+    assert np.linalg.norm(unflipped - theirs) / np.linalg.norm(theirs) > 0.5
+    # The vector form ASTRA writes for the same scan is the same geometry.
+    vec = prism.Geometry.from_astra(astra.geom_2vec(pg), vg)
+    assert np.array_equal(prism.project(prism.astra_image(image), vec), ours)
+    assert np.array_equal(prism.to_astra_image(prism.astra_image(image)), image)
+
+
+def test_fan_and_vector_geometries_from_keywords():
+    fan = prism.Geometry.fan(dso=200.0, dsd=300.0, cols=48, pitch=1.3, slice=(32, 40), voxel=1.0,
+                             angles=prism.full_turn(12))
+    assert fan.volume_shape == (1, 32, 40) and fan.projection_shape == (12, 1, 48)
+    # The fan's own vectors give the same projections (the circular scan is a special case).
+    s, c = np.sin(fan.angles), np.cos(fan.angles)
+    vectors = np.stack([200 * c, 200 * s, -100 * c, -100 * s, -1.3 * s, 1.3 * c], axis=1)
+    vec = prism.Geometry.from_vectors("fan", vectors, cols=48, volume=(1, 32, 40),
+                                      voxel=(1.3 * 200 / 300, 1.0, 1.0))
+    x = np.random.default_rng(3).random(fan.volume_shape, dtype=np.float32)
+    assert np.allclose(prism.project(x, vec), prism.project(x, fan), rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="holds 5 numbers"):
+        prism.Geometry.from_vectors("fan", vectors[:, :5], cols=48, volume=(1, 32, 40), voxel=1.0)

@@ -17,6 +17,7 @@ mod run;
 use ndarray::{Array3, ArrayView3};
 use numpy::{PyArray1, PyArray3, PyArrayMethods, PyReadonlyArray3, PyUntypedArrayMethods};
 use prism_domain::geometry::{Geometry, TigreGeometry};
+use prism_domain::import::config::{FanGeometry, VectorGeometry};
 use prism_domain::projector::Joseph;
 use prism_recon::algorithms::{self, Order, SartOptions, Window};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
@@ -177,6 +178,38 @@ fn geometry_from_tigre(tigre_json: &str, angles_rad: Vec<f64>) -> PyResult<Strin
     serde_json::to_string(&g).map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }
 
+/// Prism's geometry JSON for the `fan:` fields of an import config (`dso`, `dsd`, `cols`, `pitch`,
+/// `offset_u`, `nx`, `ny`, `dx`, `dy`, `offset`; docs/import.md) and angles: a one-row cone beam
+/// over a one-voxel-thick slice.
+#[pyfunction]
+fn geometry_from_fan(fan_json: &str, angles_rad: Vec<f64>) -> PyResult<String> {
+    let f: FanGeometry =
+        serde_json::from_str(fan_json).map_err(|e| value_error(format!("fan geometry: {e}")))?;
+    let g = f.to_geometry(angles_rad).map_err(value_error)?;
+    serde_json::to_string(&g).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
+/// Prism's geometry JSON for per-view vectors (ASTRA's rows, docs/geometry.md): `spec_json` holds
+/// an import config's `vectors:` fields but the file (`beam`, `rows`, `cols`, `volume`),
+/// `view_rows` the 12 (cone, parallel) or 6 (fan) numbers of each view; angles are derived when
+/// not given.
+#[pyfunction]
+#[pyo3(signature = (spec_json, view_rows, angles_rad=None))]
+fn geometry_from_vectors(
+    spec_json: &str,
+    view_rows: Vec<Vec<f64>>,
+    angles_rad: Option<Vec<f64>>,
+) -> PyResult<String> {
+    let mut spec: serde_json::Value =
+        serde_json::from_str(spec_json).map_err(|e| value_error(format!("vectors: {e}")))?;
+    // The rows come from the caller's array, not from a file.
+    spec["file"] = serde_json::Value::String("(array)".into());
+    let v: VectorGeometry =
+        serde_json::from_value(spec).map_err(|e| value_error(format!("vectors: {e}")))?;
+    let g = v.to_geometry(&view_rows, angles_rad).map_err(value_error)?;
+    serde_json::to_string(&g).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
 #[pymodule]
 fn _prism(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(project, m)?)?;
@@ -188,6 +221,8 @@ fn _prism(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(query::query, m)?)?;
     m.add_function(wrap_pyfunction!(check_geometry, m)?)?;
     m.add_function(wrap_pyfunction!(geometry_from_tigre, m)?)?;
+    m.add_function(wrap_pyfunction!(geometry_from_fan, m)?)?;
+    m.add_function(wrap_pyfunction!(geometry_from_vectors, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }
