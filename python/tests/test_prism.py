@@ -166,15 +166,25 @@ def test_results_own_their_memory_under_gc_stress():
     assert out.base is not None or out.flags.owndata
 
 
-def rtk_or_skip():
+def peer_or_skip(load, what, install, required_by):
+    """`load()` (the imports of a peer tool), or a skip naming `install`; a failure instead when
+    the environment variable `required_by` is 1 (CI sets it)."""
     try:
+        return load()
+    except Exception as e:  # noqa: BLE001 - any import failure means the tool is absent
+        if os.environ.get(required_by) == "1":
+            raise
+        pytest.skip(f"{what} not importable ({e}); {install}")
+
+
+def rtk_or_skip():
+    def load():
         import itk
         from itk import RTK as rtk
-    except Exception as e:  # noqa: BLE001 - any import failure means RTK is absent
-        if os.environ.get("PRISM_REQUIRE_RTK") == "1":
-            raise
-        pytest.skip(f"RTK not importable ({e}); pip install itk-rtk")
-    return itk, rtk
+
+        return itk, rtk
+
+    return peer_or_skip(load, "RTK", "pip install itk-rtk", "PRISM_REQUIRE_RTK")
 
 
 def rtk_images(itk, rtk, g):
@@ -223,13 +233,12 @@ def test_project_and_fdk_agree_with_rtk():
 
 
 def astra_or_skip():
-    try:
+    def load():
         import astra
-    except Exception as e:  # noqa: BLE001 - any import failure means ASTRA is absent
-        if os.environ.get("PRISM_REQUIRE_ASTRA") == "1":
-            raise
-        pytest.skip(f"ASTRA not importable ({e}); pip install astra-toolbox")
-    return astra
+
+        return astra
+
+    return peer_or_skip(load, "ASTRA", "pip install astra-toolbox", "PRISM_REQUIRE_ASTRA")
 
 
 def test_astra_fan_beams_project_as_astra_does():
