@@ -219,7 +219,9 @@ class Geometry:
             cols = int(proj_geom["DetectorCount"])
         else:
             raise ValueError(
-                f"from_astra: proj_geom type {kind!r} is not mapped (fanflat and fanflat_vec are)"
+                f"from_astra: proj_geom type {kind!r} is not mapped: fanflat and fanflat_vec are; "
+                "ASTRA's 3-D volume axes could not be checked without CUDA (give the vectors to "
+                "Geometry.from_vectors once their orientation is checked on your data)"
             )
         opt = vol_geom.get("option", vol_geom)
         ny, nx = int(vol_geom["GridRowCount"]), int(vol_geom["GridColCount"])

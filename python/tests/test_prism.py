@@ -267,6 +267,8 @@ def test_astra_fan_beams_project_as_astra_does():
     vec = prism.Geometry.from_astra(astra.geom_2vec(pg), vg)
     assert np.array_equal(prism.project(prism.astra_image(image), vec), ours)
     assert np.array_equal(prism.to_astra_image(prism.astra_image(image)), image)
+    with pytest.raises(ValueError, match="'cone' is not mapped"):
+        prism.Geometry.from_astra({"type": "cone"}, vg)
 
 
 def test_fan_and_vector_geometries_from_keywords():
