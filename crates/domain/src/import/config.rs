@@ -91,9 +91,17 @@ pub enum GeometrySource {
 #[serde(deny_unknown_fields)]
 pub struct VectorGeometry {
     pub beam: VectorBeam,
-    /// `.npy` (`[views, 12]` or `[views, 6]`, f64 or f32) or text (one row per line, numbers
-    /// separated by spaces or commas, `#` comments); relative to the import config.
+    /// `.npy` (`[views, 12]` or `[views, 6]`, f64 or f32), text (one row per line, numbers
+    /// separated by spaces or commas, `#` comments) or HDF5 / MATLAB -v7.3 (`dataset`);
+    /// relative to the import config.
     pub file: PathBuf,
+    /// The dataset of an HDF5 / MATLAB -v7.3 `file` (e.g. `/geometry/vectors`).
+    #[serde(default)]
+    pub dataset: Option<String>,
+    /// How that dataset is stored: `theta:x` (views first, the default) or `x:theta` (a MATLAB
+    /// views × 12 matrix, which -v7.3 stores column-major).
+    #[serde(default)]
+    pub axes: Option<String>,
     /// Detector rows (a fan has one) and columns.
     pub rows: Option<usize>,
     pub cols: usize,

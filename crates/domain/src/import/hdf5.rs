@@ -57,6 +57,71 @@ pub fn read_vector(path: &Path, name: &str) -> Result<Vec<f64>> {
     read_f32_or_f64(&ds, path, name)
 }
 
+/// Dataset `name` of the HDF5 file `path` as rows of `width` numbers, one per view (f64; per-view
+/// geometry vectors). A 2-D dataset stored views first (`axes` `theta:x`, the default) or numbers
+/// first (`x:theta`: how MATLAB -v7.3 stores a views × width matrix, column-major).
+pub fn read_rows(
+    path: &Path,
+    name: &str,
+    axes: Option<&str>,
+    width: usize,
+) -> Result<Vec<Vec<f64>>> {
+    let file = open(path)?;
+    let ds = dataset(&file, path, name)?;
+    let shape: Vec<usize> = ds.shape().iter().map(|&n| n as usize).collect();
+    if shape.len() != 2 {
+        return Err(Error::field(
+            path,
+            name,
+            format!("has shape {shape:?}; per-view vectors are a 2-D [views, {width}] dataset"),
+        ));
+    }
+    let views_first = match axes.unwrap_or("theta:x") {
+        "theta:x" => true,
+        "x:theta" => false,
+        other => {
+            return Err(Error::field(
+                path,
+                "axes",
+                format!(
+                    "`{other}`: vectors are stored `theta:x` (views first) or `x:theta` (MATLAB)"
+                ),
+            ));
+        }
+    };
+    let (views, numbers) = if views_first {
+        (shape[0], shape[1])
+    } else {
+        (shape[1], shape[0])
+    };
+    if numbers != width {
+        let hint = if views == width {
+            "; the other axis has that length: set `axes` (theta:x or x:theta)"
+        } else {
+            ""
+        };
+        return Err(Error::field(
+            path,
+            name,
+            format!("has shape {shape:?}: {numbers} numbers per view, not {width}{hint}"),
+        ));
+    }
+    let values = read_f32_or_f64(&ds, path, name)?;
+    Ok((0..views)
+        .map(|v| {
+            (0..width)
+                .map(|j| {
+                    if views_first {
+                        values[v * width + j]
+                    } else {
+                        values[j * views + v]
+                    }
+                })
+                .collect()
+        })
+        .collect())
+}
+
 /// Where each output axis (theta, y, x) is stored, from a `:`-separated list of stored axis
 /// names. Every stored axis must be named once; `theta` and `y` may be absent (length 1).
 fn parse_axes(text: &str, ndim: usize) -> std::result::Result<[Option<usize>; 3], String> {

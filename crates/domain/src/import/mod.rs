@@ -413,8 +413,13 @@ impl ImportConfig {
     pub fn scan_geometry(&self, base: &Path) -> Result<(Geometry, bool)> {
         let vectors = match &self.geometry {
             config::GeometrySource::Vectors(v) => Some(
-                read_vector_rows(&base.join(&v.file), v.row_len())
-                    .map_err(|e| e.under("geometry.vectors"))?,
+                read_vector_rows(
+                    &base.join(&v.file),
+                    v.dataset.as_deref(),
+                    v.axes.as_deref(),
+                    v.row_len(),
+                )
+                .map_err(|e| e.under("geometry.vectors"))?,
             ),
             _ => None,
         };
@@ -426,9 +431,32 @@ impl ImportConfig {
     }
 }
 
-/// The rows of a vector file: a `[views, width]` `.npy` (f64 or f32) or text with one row per
-/// line (numbers separated by spaces or commas, `#` comments).
-fn read_vector_rows(path: &Path, width: usize) -> Result<Vec<Vec<f64>>> {
+/// The rows of a vector file: a `[views, width]` `.npy` (f64 or f32), a dataset of an HDF5 /
+/// MATLAB -v7.3 file ([`hdf5::read_rows`]) or text with one row per line (numbers separated by
+/// spaces or commas, `#` comments).
+fn read_vector_rows(
+    path: &Path,
+    dataset: Option<&str>,
+    axes: Option<&str>,
+    width: usize,
+) -> Result<Vec<Vec<f64>>> {
+    if hdf5::is_hdf5(path) {
+        let name = dataset.ok_or_else(|| {
+            Error::field(
+                path,
+                "dataset",
+                "name the dataset of the vectors in this HDF5 file",
+            )
+        })?;
+        return hdf5::read_rows(path, name, axes, width);
+    }
+    if dataset.is_some() || axes.is_some() {
+        return Err(Error::field(
+            path,
+            "dataset",
+            "`dataset` and `axes` apply to HDF5 / MATLAB -v7.3 files; this is not one",
+        ));
+    }
     if path.extension().is_some_and(|e| e == "npy") {
         let a = match crate::scene::npy::read_array::<f64, ndarray::Ix2>(path, "file") {
             Ok(a) => a,

@@ -167,6 +167,61 @@ fn hdf5_fixture() -> std::path::PathBuf {
 }
 
 #[test]
+fn per_view_vectors_read_from_hdf5_and_matlab_in_f64() {
+    // Fixtures from tests/fixtures/hdf5/make_fixtures.py: value = 100·view + j + 1e-7·(j + 1),
+    // whose fraction float32 would lose.
+    let base = hdf5_fixture();
+    let want = |rows: &[Vec<f64>]| {
+        rows.len() == 3
+            && rows.iter().enumerate().all(|(v, r)| {
+                r.len() == 12
+                    && r.iter()
+                        .enumerate()
+                        .all(|(j, &x)| x == 100.0 * v as f64 + j as f64 + 1e-7 * (j + 1) as f64)
+            })
+    };
+    let h5 = super::read_vector_rows(
+        &base.join("dataexchange.h5"),
+        Some("/geometry/vectors"),
+        None,
+        12,
+    )
+    .unwrap();
+    assert!(want(&h5), "{h5:?}");
+    // MATLAB -v7.3 stores its views × 12 matrix column-major: `x:theta`.
+    let mat = super::read_vector_rows(
+        &base.join("matlab73.mat"),
+        Some("/CtData/vectors"),
+        Some("x:theta"),
+        12,
+    )
+    .unwrap();
+    assert!(want(&mat), "{mat:?}");
+    // Read views first, the shape [12, 3] names the mismatch; no dataset, or one on a text
+    // file, is refused naming the field.
+    let e = super::read_vector_rows(
+        &base.join("matlab73.mat"),
+        Some("/CtData/vectors"),
+        None,
+        12,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("3 numbers per view, not 12") && e.contains("set `axes`"),
+        "{e}"
+    );
+    let e = super::read_vector_rows(&base.join("matlab73.mat"), None, None, 12)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("dataset"), "{e}");
+    let e = super::read_vector_rows(&base.join("make_fixtures.py"), Some("/v"), None, 12)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("not one"), "{e}");
+}
+
+#[test]
 fn hdf5_stacks_come_out_views_rows_columns_in_any_stored_order() {
     // Fixtures from tests/fixtures/hdf5/make_fixtures.py: value = 100·view + 10·row + col.
     let base = hdf5_fixture();
@@ -422,13 +477,15 @@ fn fan_vectors_are_the_fan_geometry_they_describe() {
     let v = VectorGeometry {
         beam: VectorBeam::Fan,
         file: "fan.txt".into(),
+        dataset: None,
+        axes: None,
         rows: None,
         cols: 40,
         volume: g.volume.clone(),
     };
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("fan.txt"), rows).unwrap();
-    let read = super::read_vector_rows(&dir.path().join("fan.txt"), 6).unwrap();
+    let read = super::read_vector_rows(&dir.path().join("fan.txt"), None, None, 6).unwrap();
     let h = v.to_geometry(&read, None).unwrap();
     let x = random(g.volume.shape_zyx(), 3);
     let fp = |g: &crate::geometry::Geometry| Joseph::new(g).unwrap().forward(x.view()).unwrap();
