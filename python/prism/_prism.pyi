@@ -41,6 +41,7 @@ def reconstruct(
     references: Optional[F32] = None,
     force: bool = False,
     callback: Optional[Callable[[str, Any, Any], None]] = None,
+    allow_memory: bool = False,
 ) -> str: ...
 def query(
     run_dir: str,

@@ -64,6 +64,7 @@ def reconstruct(
     out: Union[None, str, Path] = None,
     force: bool = False,
     progress: Progress = None,
+    allow_memory: bool = False,
 ) -> Run:
     """Reconstruct every channel with one of ``prism recon``'s methods (``fdk``, ``sart``,
     ``cgls``, ``tv``, ``naf``, ``r2gs``, ``4dsg-stage1``, ``4dsg``), through the same pipeline.
@@ -85,6 +86,8 @@ def reconstruct(
     * ``progress``: ``True`` shows tqdm bars (text lines without tqdm), or a callable
       ``f(kind, a, b)`` receives ``("phase", name, total)``, ``("progress", done, status)`` and
       ``("note", level, text)``.
+    * ``allow_memory``: run even when the estimated peak memory exceeds what is available
+      (otherwise a ``ValueError`` says how much the run needs, as ``prism recon`` does).
 
     Ctrl-C stops a training method at its next step and raises ``KeyboardInterrupt``."""
     p = projections[None] if isinstance(projections, np.ndarray) and projections.ndim == 3 else projections
@@ -113,7 +116,7 @@ def reconstruct(
     try:
         published = _prism.reconstruct(
             p, geometry.to_json(), text, json.dumps(chans), str(target),
-            availability, references, bool(force), callback,
+            availability, references, bool(force), callback, bool(allow_memory),
         )
         run = load_run(published)
     finally:

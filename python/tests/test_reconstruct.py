@@ -137,3 +137,12 @@ def test_a_trained_spectral_run_answers_queries(scene, tmp_path):
         prism.query(run, kev=40, tau=0.5)
     with pytest.raises(ValueError, match="temporary"):
         prism.query(prism.reconstruct(p, g, method="fdk", channels=KEV))
+
+
+def test_a_run_too_large_for_the_memory_is_refused_before_it_starts(scene, tmp_path):
+    g, p, _ = scene
+    # At a cap of a billion Gaussians R²-Gaussian's estimated peak is terabytes.
+    huge = {"densify": {"max_gaussians": 1_000_000_000}}
+    with pytest.raises(ValueError, match="needs about .* at its peak"):
+        prism.reconstruct(p, g, method="r2gs", config=huge, channels=KEV, out=tmp_path / "big")
+    assert not (tmp_path / "big").exists()

@@ -96,9 +96,10 @@ fn view4<'a>(name: &str, a: &'a PyReadonlyArray4<'_, f32>) -> PyResult<ArrayView
 /// (a `configs/recon/*.yaml`'s text) into the run directory `out`. `channels_json` lists the
 /// channels (`[{label, coordinate: {kind, …}}]`, the `channels:` of a `scene.yaml`);
 /// `availability` `[view][channel]` marks which channel was measured at which view (all when
-/// `None`); `references` `[channel][z][y][x]` scores the run. Returns the published directory.
+/// `None`); `references` `[channel][z][y][x]` scores the run; `allow_memory` runs even when the
+/// estimated peak exceeds the memory available. Returns the published directory.
 #[pyfunction]
-#[pyo3(signature = (projections, geometry_json, config_yaml, channels_json, out, availability=None, references=None, force=false, callback=None))]
+#[pyo3(signature = (projections, geometry_json, config_yaml, channels_json, out, availability=None, references=None, force=false, callback=None, allow_memory=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct(
     py: Python<'_>,
@@ -111,6 +112,7 @@ pub fn reconstruct(
     references: Option<PyReadonlyArray4<'_, f32>>,
     force: bool,
     callback: Option<Py<PyAny>>,
+    allow_memory: bool,
 ) -> PyResult<String> {
     let geometry = geometry(geometry_json)?;
     let config = MethodConfig::from_yaml(config_yaml, std::path::Path::new("config"))
@@ -157,6 +159,12 @@ pub fn reconstruct(
     };
     scene.validate().map_err(value_error)?;
     let evaluation = Evaluation::default();
+    // The run's estimated peak against the memory available, as `prism recon` checks it: a
+    // clear error instead of the out-of-memory killer ending the interpreter.
+    let what = format!("{} on {views} views", config.method().name());
+    pipeline::run_footprint(&config, &scene, &evaluation)
+        .check(&what, allow_memory)
+        .map_err(value_error)?;
     let observer = PyObserver {
         callback,
         stop: AtomicBool::new(false),
