@@ -174,12 +174,29 @@ def _channels(channels: Optional[Sequence[Any]], n: int) -> List[dict]:
             label = c.pop("label", None)
             coordinate = c.pop("coordinate", c)
             if label is None:
-                label = f"channel{i}"
+                label = _label(coordinate, i)
             out.append({"label": str(label), "coordinate": coordinate})
         else:
             kev = float(c)
             out.append({"label": f"{kev:g}keV", "coordinate": {"kind": "energy", "kev": kev}})
     return out
+
+
+def _label(coordinate: Mapping[str, Any], i: int) -> str:
+    """A channel's default label from its coordinate (``140kVp``, ``60keV``, ``20-35keV``)."""
+    kind = coordinate.get("kind")
+    try:
+        if kind == "energy":
+            return f"{float(coordinate['kev']):g}keV"
+        if kind == "tube_voltage":
+            return f"{float(coordinate['kvp']):g}kVp"
+        if kind == "window":
+            return f"{float(coordinate['lo_kev']):g}-{float(coordinate['hi_kev']):g}keV"
+        if kind == "mixing":
+            return f"mix{float(coordinate['lambda']):g}"
+    except (KeyError, TypeError, ValueError):
+        pass  # the native side names the missing or bad field
+    return f"channel{i}"
 
 
 def _config_text(method: Optional[str], config: Union[None, str, Path, Mapping[str, Any]]) -> str:

@@ -80,6 +80,20 @@ def test_one_channel_and_interleaved_availability(scene):
     assert sorted(run.volumes) == ["100keV", "40keV", "70keV"]
 
 
+def test_channels_take_any_spectral_coordinate(scene):
+    g, p, _ = scene
+    kvp = [{"label": "low", "kind": "tube_voltage", "kvp": 80}, {"kind": "tube_voltage", "kvp": 100},
+           {"kind": "tube_voltage", "kvp": 140}]
+    assert sorted(prism.reconstruct(p, g, method="fdk", channels=kvp).volumes) == ["100kVp", "140kVp", "low"]
+    bins = [{"kind": "window", "lo_kev": lo, "hi_kev": lo + 15} for lo in (20, 35, 50)]
+    assert sorted(prism.reconstruct(p, g, method="fdk", channels=bins).volumes) == [
+        "20-35keV", "35-50keV", "50-65keV"
+    ]
+    # One coordinate kind per scan, as a scene.yaml requires; the message names the channel.
+    with pytest.raises(ValueError, match=r"channels\[2\].coordinate"):
+        prism.reconstruct(p, g, method="fdk", channels=kvp[:2] + bins[:1])
+
+
 def test_bad_calls_name_what_is_wrong(scene):
     g, p, _ = scene
     with pytest.raises(ValueError, match="channels: 3 channels need"):
