@@ -178,13 +178,7 @@ class Geometry:
         rows_of = np.asarray(vectors, dtype=float)
         if rows_of.ndim != 2:
             raise ValueError(f"vectors: expected [views, 12] or [views, 6], got shape {rows_of.shape}")
-        nz, ny, nx = (int(n) for n in volume)
-        dz, dy, dx = _zyx("voxel", voxel)
-        oz, oy, ox = _zyx("volume_offset", volume_offset)
-        spec = {
-            "beam": beam, "cols": int(cols),
-            "volume": {"nx": nx, "ny": ny, "nz": nz, "dx": dx, "dy": dy, "dz": dz, "offset": [ox, oy, oz]},
-        }
+        spec = {"beam": beam, "cols": int(cols), "volume": _volume(volume, voxel, volume_offset)}
         if rows is not None:
             spec["rows"] = int(rows)
         if angles is not None:
@@ -347,11 +341,6 @@ def _fields(
         pitch_v = pitch_u = float(pitch)  # type: ignore[arg-type]
     else:
         pitch_v, pitch_u = (float(p) for p in pitch)  # type: ignore[union-attr]
-    shape = [int(n) for n in volume]
-    if len(shape) != 3:
-        raise ValueError(f"volume: expected the array shape (nz, ny, nx), got {tuple(volume)}")
-    dz, dy, dx = _zyx("voxel", voxel)
-    oz, oy, ox = _zyx("volume_offset", volume_offset)
     return {
         "beam": beam,
         "dso": float(dso),
@@ -364,17 +353,20 @@ def _fields(
             "offset_u": float(detector_offset[0]),
             "offset_v": float(detector_offset[1]),
         },
-        "volume": {
-            "nx": shape[2],
-            "ny": shape[1],
-            "nz": shape[0],
-            "dx": dx,
-            "dy": dy,
-            "dz": dz,
-            "offset": [ox, oy, oz],
-        },
+        "volume": _volume(volume, voxel, volume_offset),
         "angles_rad": [float(a) for a in np.asarray(angles, float).ravel()],
     }
+
+
+def _volume(volume: Sequence[int], voxel: Triple, offset: Triple) -> Dict[str, Any]:
+    """Prism's `volume` fields for an array shape ``(nz, ny, nx)``, voxel sizes and a grid centre
+    (each one number or ``(z, y, x)``)."""
+    shape = [int(n) for n in volume]
+    if len(shape) != 3:
+        raise ValueError(f"volume: expected the array shape (nz, ny, nx), got {tuple(volume)}")
+    dz, dy, dx = _zyx("voxel", voxel)
+    oz, oy, ox = _zyx("volume_offset", offset)
+    return {"nx": shape[2], "ny": shape[1], "nz": shape[0], "dx": dx, "dy": dy, "dz": dz, "offset": [ox, oy, oz]}
 
 
 def _plain(value: Any) -> Any:

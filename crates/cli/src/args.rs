@@ -140,7 +140,7 @@ impl GaussianArgs {
             Some(out) if config.method().trains() => {
                 let path = match &self.checkpoint {
                     Some(p) => p.clone(),
-                    None => default_checkpoint(out)?,
+                    None => Checkpointing::default_path(out)?,
                 };
                 if !self.resume && path.is_file() {
                     eprintln!(
@@ -172,16 +172,6 @@ impl GaussianArgs {
         options.check(config)?;
         Ok(options)
     }
-}
-
-/// `<out>.resume.safetensors` beside the output directory `out`.
-fn default_checkpoint(out: &Path) -> anyhow::Result<PathBuf> {
-    let Some(name) = out.file_name() else {
-        bail!("-o {}: name the output directory", out.display());
-    };
-    let mut file = name.to_os_string();
-    file.push(".resume.safetensors");
-    Ok(out.with_file_name(file))
 }
 
 /// Where a run is published.

@@ -197,95 +197,82 @@ fn store<const B: usize, const R: usize>(
     }
 }
 
-/// `out[i] += x[i] · w` for every row `i`: `x` `[m, d]`, `w` `[d, d_out]` (row-major), `out`
-/// `[m, d_out]` (`m` from `out`).
-#[inline(always)]
-fn rows_times(x: &[f32], d: usize, w: &[f32], out: &mut [f32]) {
-    #[inline(always)]
-    fn by<const B: usize, const R: usize>(
-        x: &[f32],
-        d: usize,
-        w: &[f32],
-        out: &mut [f32],
-        j0: usize,
-    ) {
-        let d_out = w.len() / d.max(1);
-        let m = out.len() / d_out;
-        let mut i = 0;
-        while i + R <= m {
-            let mut t = load::<B, R>(out, i, d_out, j0);
-            tile(
-                &mut t,
-                d,
-                std::array::from_fn(|r| &x[(i + r) * d..]),
-                1,
-                &w[j0..],
-                d_out,
-            );
-            store(out, i, d_out, j0, &t);
-            i += R;
-        }
-        for i in i..m {
-            let mut t = load::<B, 1>(out, i, d_out, j0);
-            tile(&mut t, d, [&x[i * d..]], 1, &w[j0..], d_out);
-            store(out, i, d_out, j0, &t);
+/// The left operand of a [`product`]: its row `r` starts at `r · row` and holds `n` values
+/// `stride` apart. A row-major `[m, d]` matrix read by rows is `row = d`, `stride = 1`; read by
+/// columns (its transpose), `row = 1`, `stride = d`.
+#[derive(Clone, Copy)]
+struct Rows<'a> {
+    values: &'a [f32],
+    row: usize,
+    stride: usize,
+}
+
+impl<'a> Rows<'a> {
+    /// The rows of a row-major matrix `d` wide.
+    fn of(values: &'a [f32], d: usize) -> Self {
+        Rows {
+            values,
+            row: d,
+            stride: 1,
         }
     }
-    let d_out = out.len() / (x.len() / d.max(1)).max(1);
-    let w = &w[..d * d_out];
-    for (j0, b) in blocks(d_out) {
-        match b {
-            WIDE => by::<WIDE, 2>(x, d, w, out, j0),
-            NARROW => by::<NARROW, 4>(x, d, w, out, j0),
-            _ => by::<1, 8>(x, d, w, out, j0),
+
+    /// The columns of a row-major matrix `cols` wide, as rows.
+    fn columns(values: &'a [f32], cols: usize) -> Self {
+        Rows {
+            values,
+            row: 1,
+            stride: cols,
         }
     }
 }
-/// `dw[k][j] += Σ_i x[i][k] · dz[i][j]`: a layer's weight gradient rows `dw` `[cols, d_out]`
-/// over a task's `m` points, from inputs `x` `[m, cols]` (row-major) and the pre-activation
-/// gradients `dz` `[m, d_out]`.
+
+/// `out[r][j] += Σ_{s < n} x_r[s] · w[s][j]` for every row `r` of `out` `[rows, d_out]`, with
+/// `w` `[n, d_out]` row-major: each block of outputs in tiles of 2 × 32, 4 × 8 or 8 × 1, then
+/// the rows left over one at a time. Layers use it for `z += a · W`, the input gradient
+/// `dx = dz · Wᵀ` (`w` the transposed weight) and the weight gradient `dW += aᵀ · dz` (`x` the
+/// activations read by columns).
 #[inline(always)]
-fn input_times(x: &[f32], dz: &[f32], m: usize, dw: &mut [f32]) {
+fn product(out: &mut [f32], d_out: usize, x: Rows, n: usize, w: &[f32]) {
     #[inline(always)]
-    fn by<const B: usize, const R: usize>(
-        x: &[f32],
-        dz: &[f32],
-        m: usize,
-        dw: &mut [f32],
+    fn tile_at<const B: usize, const R: usize>(
+        out: &mut [f32],
+        d_out: usize,
         j0: usize,
+        r0: usize,
+        x: Rows,
+        n: usize,
+        w: &[f32],
     ) {
-        let d_out = dz.len() / m;
-        let cols = x.len() / m;
-        let rows = dw.len() / d_out;
-        let mut k = 0;
-        while k + R <= rows {
-            let mut t = load::<B, R>(dw, k, d_out, j0);
-            tile(
-                &mut t,
-                m,
-                std::array::from_fn(|r| &x[k + r..]),
-                cols,
-                &dz[j0..],
-                d_out,
-            );
-            store(dw, k, d_out, j0, &t);
-            k += R;
+        let mut t = load::<B, R>(out, r0, d_out, j0);
+        let xs = std::array::from_fn(|r| &x.values[(r0 + r) * x.row..]);
+        tile(&mut t, n, xs, x.stride, &w[j0..], d_out);
+        store(out, r0, d_out, j0, &t);
+    }
+    #[inline(always)]
+    fn tiles<const B: usize, const R: usize>(
+        out: &mut [f32],
+        d_out: usize,
+        j0: usize,
+        x: Rows,
+        n: usize,
+        w: &[f32],
+    ) {
+        let rows = out.len() / d_out;
+        let mut r0 = 0;
+        while r0 + R <= rows {
+            tile_at::<B, R>(out, d_out, j0, r0, x, n, w);
+            r0 += R;
         }
-        for k in k..rows {
-            let mut t = load::<B, 1>(dw, k, d_out, j0);
-            tile(&mut t, m, [&x[k..]], cols, &dz[j0..], d_out);
-            store(dw, k, d_out, j0, &t);
+        for r0 in r0..rows {
+            tile_at::<B, 1>(out, d_out, j0, r0, x, n, w);
         }
     }
-    if m == 0 {
-        return;
-    }
-    let d_out = dz.len() / m;
     for (j0, b) in blocks(d_out) {
         match b {
-            WIDE => by::<WIDE, 2>(x, dz, m, dw, j0),
-            NARROW => by::<NARROW, 4>(x, dz, m, dw, j0),
-            _ => by::<1, 8>(x, dz, m, dw, j0),
+            WIDE => tiles::<WIDE, 2>(out, d_out, j0, x, n, w),
+            NARROW => tiles::<NARROW, 4>(out, d_out, j0, x, n, w),
+            _ => tiles::<1, 8>(out, d_out, j0, x, n, w),
         }
     }
 }
@@ -323,10 +310,16 @@ impl Scratch {
                 row.copy_from_slice(bias);
             }
             if l > 0 {
-                rows_times(&self.a[l - 1][..n * width], width, &params[wo..], z);
+                product(
+                    z,
+                    d_out,
+                    Rows::of(&self.a[l - 1], width),
+                    width,
+                    &params[wo..],
+                );
             }
             if let Some(from) = layout.encoding_rows(l) {
-                rows_times(enc, e, &params[wo + from * d_out..], z);
+                product(z, d_out, Rows::of(enc, e), e, &params[wo + from * d_out..]);
             }
             if l + 1 < layout.layers {
                 let a = sized(&mut self.a[l], n * d_out);
@@ -428,10 +421,10 @@ fn backward_task(
         let (dw, db) = d_params[wo..bo + d_out].split_at_mut(bo - wo);
         let (dw_prev, dw_enc) = dw.split_at_mut(reads_enc.unwrap_or(d_in) * d_out);
         if l > 0 {
-            input_times(&a[l - 1][..m * width], dz_l, m, dw_prev);
+            product(dw_prev, d_out, Rows::columns(&a[l - 1], width), m, dz_l);
         }
         if reads_enc.is_some() {
-            input_times(enc, dz_l, m, dw_enc);
+            product(dw_enc, d_out, Rows::columns(enc, e), m, dz_l);
         }
         for g in dz_l.chunks_exact(d_out) {
             for (b, &v) in db.iter_mut().zip(g) {
@@ -441,7 +434,7 @@ fn backward_task(
         // The input gradient, row by row: `dx = dz · Wᵀ`.
         let dx = sized(dx, m * d_in);
         dx.fill(0.0);
-        rows_times(dz_l, d_out, &transposed[l], dx);
+        product(dx, d_in, Rows::of(dz_l, d_out), d_out, &transposed[l]);
         if let Some(from) = reads_enc {
             for (de, row) in d_enc.chunks_exact_mut(e).zip(dx.chunks_exact(d_in)) {
                 for (a, &b) in de.iter_mut().zip(&row[from..]) {

@@ -170,13 +170,10 @@ pub fn reconstruct(
         stop: AtomicBool::new(false),
         main: std::thread::current().id(),
     };
-    let checkpoint = match out.file_name() {
-        Some(name) if config.method().trains() => {
-            let mut file = name.to_os_string();
-            file.push(".resume.safetensors");
-            Some(out.with_file_name(file))
-        }
-        _ => None,
+    let checkpoint = if config.method().trains() {
+        Some(Checkpointing::default_path(&out).map_err(value_error)?)
+    } else {
+        None
     };
     let dir = RunDir::create(&out, force).map_err(value_error)?;
     let device = config.device().device().map_err(value_error)?;
@@ -194,7 +191,6 @@ pub fn reconstruct(
         };
         pipeline::run(&config, &scene, dir, &options)
     });
-    drop(scene);
     match result {
         Ok(outcome) => Ok(outcome.dir.to_string_lossy().into_owned()),
         Err(e @ Error::Interrupted { .. }) => Err(PyKeyboardInterrupt::new_err(e.to_string())),

@@ -41,6 +41,20 @@ pub struct Checkpointing<'a> {
 }
 
 impl<'a> Checkpointing<'a> {
+    /// Where a run published at `out` keeps its state by default: beside it, as
+    /// `<out>.resume.safetensors` (`prism recon` and the Python package alike).
+    pub fn default_path(out: &Path) -> Result<PathBuf> {
+        let Some(name) = out.file_name() else {
+            return Err(Error::invalid(
+                "output",
+                format!("`{}`: name the output directory", out.display()),
+            ));
+        };
+        let mut file = name.to_os_string();
+        file.push(".resume.safetensors");
+        Ok(out.with_file_name(file))
+    }
+
     /// The resume file of a run with `fingerprint`, saved every `every` iterations.
     pub fn file(&self, every: usize, fingerprint: Fingerprint) -> ResumeFile<'a> {
         ResumeFile::new(self.path.clone(), every, fingerprint, self.stop)

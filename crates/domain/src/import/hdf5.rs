@@ -76,15 +76,16 @@ pub fn read_rows(
             format!("has shape {shape:?}; per-view vectors are a 2-D [views, {width}] dataset"),
         ));
     }
-    let views_first = match axes.unwrap_or("theta:x") {
-        "theta:x" => true,
-        "x:theta" => false,
-        other => {
+    // The stack's axis names: `theta` the views, `x` the numbers of a row.
+    let stored = axes.unwrap_or("theta:x");
+    let views_first = match parse_axes(stored, 2).map_err(|m| Error::field(path, "axes", m))? {
+        [Some(t), None, Some(_)] => t == 0,
+        _ => {
             return Err(Error::field(
                 path,
                 "axes",
                 format!(
-                    "`{other}`: vectors are stored `theta:x` (views first) or `x:theta` (MATLAB)"
+                    "`{stored}`: vectors are stored `theta:x` (views first) or `x:theta` (MATLAB)"
                 ),
             ));
         }
