@@ -371,3 +371,132 @@ fn more_jobs_than_cores_are_capped_at_the_cores() {
         "{record}"
     );
 }
+
+/// `--html`: `report.html` with its viewer's data beside it and nothing fetched from a network,
+/// used in headless Chromium by `tests/browser/report_page.py` (the z slider, a channel switch,
+/// the linked cursor and the residual view change what is drawn; no console error); and
+/// `prism report --html` over two runs and their scene. The browser part is skipped with a message
+/// where Chromium, chromedriver or Selenium is missing, unless `PRISM_REQUIRE_BROWSER` is set
+/// (`.ci/run` installs them and sets it). `PRISM_SCREENSHOTS=<dir>` keeps the screenshots.
+#[test]
+fn the_html_report_is_browsable_offline() {
+    let dir = tempfile::tempdir().unwrap();
+    let suite = tiny_suite(dir.path());
+    let out = dir.path().join("out");
+    let (ok, t) = prism(&[
+        "experiment",
+        path(&suite),
+        "-o",
+        path(&out),
+        "--study",
+        "table",
+        "--html",
+    ]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("report.html (") && t.contains("report-data"),
+        "{t}"
+    );
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(
+        html.contains("<table>")
+            && html.contains("id=\"slice-viewer\"")
+            && html.contains("<img src=\"data:image/png;base64,"),
+        "{html}"
+    );
+    for remote in [
+        "src=\"http",
+        "href=\"http",
+        "url(http",
+        "src=\"//",
+        "rel=\"stylesheet\"",
+    ] {
+        assert!(!html.contains(remote), "the page loads `{remote}…`");
+    }
+    // One set per finished Table II scene cell (the noisy cells did not run): p3 and p4.
+    let sets: serde_json::Value = serde_json::from_str(
+        html.split("window.PRISM_SETS = ")
+            .nth(1)
+            .and_then(|s| s.split(";\n").next())
+            .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(sets.as_array().unwrap().len(), 2, "{sets}");
+    let script = std::fs::read_to_string(out.join("report-data/set-1.js")).unwrap();
+    let json = script
+        .strip_prefix("PrismViewer.add(1, ")
+        .and_then(|s| s.trim_end().strip_suffix(");"))
+        .unwrap();
+    let set: serde_json::Value = serde_json::from_str(json).unwrap();
+    assert_eq!(set["title"], "p4, 3 views, noise shipped");
+    assert_eq!(set["shape"], serde_json::json!([16, 16, 16]));
+    assert_eq!(set["channels"].as_array().unwrap().len(), 4);
+    let methods: Vec<&str> = set["methods"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["label"].as_str().unwrap())
+        .collect();
+    assert_eq!(methods, ["FDK", "SART", "R²-Gaussian", "4D-SG"]);
+    for m in set["methods"].as_array().unwrap() {
+        for key in ["images", "residuals"] {
+            assert!(
+                m[key].as_array().unwrap().iter().all(|u| u
+                    .as_str()
+                    .is_some_and(|u| u.starts_with("data:image/png;base64,"))),
+                "{}",
+                m["label"]
+            );
+        }
+    }
+    browse(&out.join("report.html"), dir.path());
+
+    let cell = out.join("runs/p3-v3-shipped-s0");
+    let page = dir.path().join("runs.html");
+    let (ok, t) = prism(&[
+        "report",
+        path(&cell.join("sart")),
+        path(&cell.join("4dsg")),
+        "--html",
+        path(&page),
+        "--scene",
+        path(&out.join("scenes/p3-v3-shipped-s0")),
+    ]);
+    assert!(ok, "{t}");
+    let html = std::fs::read_to_string(&page).unwrap();
+    assert!(
+        html.contains("PSNR against time") && html.contains("runs-data/set-0.js"),
+        "{html}"
+    );
+    assert!(dir.path().join("runs-data/psnr-time.png").exists());
+}
+
+/// Use `page` in headless Chromium (tests/browser/report_page.py); see the test above.
+fn browse(page: &Path, dir: &Path) {
+    let shots = std::env::var_os("PRISM_SCREENSHOTS")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| dir.join("screenshots"));
+    let script = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../tests/browser/report_page.py"
+    );
+    let o = std::process::Command::new("python3")
+        .args([script, path(page), "--screenshots", path(&shots)])
+        .output()
+        .expect("python3 runs");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    if o.status.code() == Some(2) {
+        assert!(
+            std::env::var_os("PRISM_REQUIRE_BROWSER").is_none(),
+            "PRISM_REQUIRE_BROWSER is set but no browser runs: {text}"
+        );
+        eprintln!("skipped the browser check: {text}");
+        return;
+    }
+    assert!(o.status.success(), "{text}");
+    assert!(shots.join("3-viewer-residual.png").exists(), "{text}");
+}

@@ -10,7 +10,7 @@ use prism_domain::observe::{Level, Observer};
 use prism_experiment::execute::{
     CellState, ExecOptions, Selection, record_failures, run_plan, run_state, scene_state,
 };
-use prism_experiment::report::write_report;
+use prism_experiment::report::{write_html, write_report};
 use prism_experiment::slurm::{SlurmOptions, submit};
 use prism_experiment::{LoadedSuite, Plan};
 use prism_recon::device::cpu_device;
@@ -43,6 +43,10 @@ struct CollectArgs {
     out: PathBuf,
     #[command(flatten)]
     set: SetArgs,
+    /// Also write report.html: the report to browse, with a slice viewer (its volumes in
+    /// report-data/ beside it).
+    #[arg(long)]
+    html: bool,
 }
 
 #[derive(clap::Args)]
@@ -54,6 +58,10 @@ struct RunArgs {
     out: Option<PathBuf>,
     #[command(flatten)]
     set: SetArgs,
+    /// Also write report.html: the report to browse, with a slice viewer (its volumes in
+    /// report-data/ beside it).
+    #[arg(long)]
+    html: bool,
     /// Compute device of the Gaussian methods (overrides every method config's `device`).
     #[arg(long)]
     device: Option<DeviceArg>,
@@ -155,10 +163,35 @@ fn evaluation(loaded: &LoadedSuite) -> anyhow::Result<Evaluation> {
 fn collect(args: CollectArgs) -> anyhow::Result<()> {
     let (loaded, plan) = load(&args.suite, &args.set)?;
     let bars = Bars::new();
-    let w = write_report(&loaded, &plan, &args.out, &[], &bars)?;
+    let w = reports(&loaded, &plan, &args.out, &[], args.html, &bars)?;
     bars.finish();
     summary(&w, plan.runs.len());
     Ok(())
+}
+
+/// `report.md` (with results.csv and the figures) and, with `html`, `report.html`.
+fn reports(
+    loaded: &LoadedSuite,
+    plan: &Plan,
+    out: &Path,
+    failures: &[prism_experiment::execute::Failure],
+    html: bool,
+    bars: &Bars,
+) -> anyhow::Result<prism_experiment::report::Written> {
+    let w = write_report(loaded, plan, out, failures, bars)?;
+    if html {
+        let page = write_html(loaded, plan, out, bars)?;
+        bars.note(
+            Level::Info,
+            &format!(
+                "{} ({:.1} MB with {})",
+                page.html.display(),
+                page.bytes as f64 / 1e6,
+                page.data.display()
+            ),
+        );
+    }
+    Ok(w)
 }
 
 fn summary(w: &prism_experiment::report::Written, cells: usize) {
@@ -230,6 +263,10 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
         if a.allow_memory {
             pass_on.push("--allow-memory".into());
         }
+        // The report task writes report.html too (the cell tasks write no report).
+        if a.html {
+            pass_on.push("--html".into());
+        }
         let s = &a.slurm;
         let sub = submit(
             &loaded,
@@ -281,7 +318,7 @@ fn run_suite(a: RunArgs) -> anyhow::Result<()> {
     }
     let executed = run_plan(&plan, out, &selection, &options);
     record_failures(out, &executed.failures)?;
-    let w = write_report(&loaded, &plan, out, &executed.failures, &bars)?;
+    let w = reports(&loaded, &plan, out, &executed.failures, a.html, &bars)?;
     bars.finish();
     eprintln!(
         "{} cells run, {} already finished, {} failed",

@@ -76,16 +76,29 @@ pub fn write_png(path: &Path, rgb: &[u8], w: u32, h: u32) -> Result<()> {
 
 /// An RGB8 buffer as PNG bytes.
 pub fn png_bytes(rgb: &[u8], w: u32, h: u32) -> Result<Vec<u8>, String> {
-    if rgb.len() != (w as usize) * (h as usize) * 3 {
-        return Err(format!("{} bytes for a {w}×{h} RGB image", rgb.len()));
+    encode_png(rgb, w, h, png::ColorType::Rgb)
+}
+
+/// An 8-bit buffer of `colour` samples (`w·h·samples` bytes, rows top to bottom) as PNG bytes.
+pub fn encode_png(
+    pixels: &[u8],
+    w: u32,
+    h: u32,
+    colour: png::ColorType,
+) -> Result<Vec<u8>, String> {
+    if pixels.len() != (w as usize) * (h as usize) * colour.samples() {
+        return Err(format!(
+            "{} bytes for a {w}×{h} {colour:?} image",
+            pixels.len()
+        ));
     }
     let mut out = Vec::new();
     {
         let mut enc = png::Encoder::new(&mut out, w, h);
-        enc.set_color(png::ColorType::Rgb);
+        enc.set_color(colour);
         enc.set_depth(png::BitDepth::Eight);
         let mut writer = enc.write_header().map_err(|e| e.to_string())?;
-        writer.write_image_data(rgb).map_err(|e| e.to_string())?;
+        writer.write_image_data(pixels).map_err(|e| e.to_string())?;
     }
     Ok(out)
 }

@@ -1,7 +1,9 @@
 //! `results.csv`, `report.md` and `figures/` of a suite's output directory, from whatever cells
 //! have finished (missing ones are listed, never guessed). Every figure is written as PNG and
-//! SVG; `report.md` embeds the PNGs.
+//! SVG; `report.md` embeds the PNGs. `report.html` ([`page`]) is the same report to browse, with
+//! a slice viewer.
 
+mod page;
 mod pictures;
 mod sections;
 pub mod table;
@@ -15,6 +17,8 @@ use crate::{Error, Result};
 use prism_domain::observe::Observer;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+
+pub use page::{HTML, write_html};
 
 pub const REPORT: &str = "report.md";
 pub const RESULTS: &str = "results.csv";
