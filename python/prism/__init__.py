@@ -27,7 +27,17 @@ from __future__ import annotations
 
 from . import _prism
 from .arrays import check_array
-from .geometry import Geometry, astra_image, astra_sinogram, full_turn, tigre_projections, to_astra_image
+from .geometry import (
+    Geometry,
+    astra_image,
+    astra_projections,
+    astra_sinogram,
+    astra_volume,
+    full_turn,
+    tigre_projections,
+    to_astra_image,
+    to_astra_projections,
+)
 from .run import Run, load_run, query, reconstruct
 
 __version__ = _prism.__version__
@@ -36,7 +46,9 @@ __all__ = [
     "Geometry",
     "Run",
     "astra_image",
+    "astra_projections",
     "astra_sinogram",
+    "astra_volume",
     "backproject",
     "cgls",
     "fdk",
@@ -48,6 +60,7 @@ __all__ = [
     "sart",
     "tigre_projections",
     "to_astra_image",
+    "to_astra_projections",
 ]
 
 import numpy as _np

@@ -187,19 +187,30 @@ class Geometry:
 
     @classmethod
     def from_astra(cls, proj_geom: Mapping[str, Any], vol_geom: Mapping[str, Any]) -> "Geometry":
-        """The geometry of ASTRA's 2-D fan beam: ``proj_geom`` of type ``fanflat`` or
-        ``fanflat_vec`` (``astra.create_proj_geom``) and a 2-D ``vol_geom``
-        (``astra.create_vol_geom``), lengths in mm.
+        """The geometry of an ASTRA scan: ``proj_geom`` (``astra.create_proj_geom``) of type
+        ``fanflat`` or ``fanflat_vec`` with a 2-D ``vol_geom``, or ``cone``, ``cone_vec``,
+        ``parallel3d`` or ``parallel3d_vec`` with a 3-D one (``astra.create_vol_geom``), lengths
+        in mm (ASTRA's unit is whatever the two share).
 
-        ASTRA's conventions, checked against its CPU projector (``line_fanflat``, tested): at
-        angle θ a ``fanflat`` source sits at ``DSO·(sin θ, −cos θ)``, the detector centre at
-        ``ODD·(−sin θ, cos θ)``, column steps along ``w·(cos θ, sin θ)`` (as ``astra.geom_2vec``
-        writes them); an image's row 0 is the *largest* y and column 0 the smallest x. Convert
-        arrays with :func:`astra_image` and :func:`astra_sinogram`. ASTRA's 3-D geometries
-        (``cone``, ``parallel3d`` and their ``_vec`` forms) are not mapped: their volume axes
-        could not be checked without a GPU (pass their vectors to :meth:`from_vectors` after
-        checking the orientation on your data)."""
+        2-D, checked against ASTRA's CPU projector (``strip_fanflat``, tested): at angle θ a
+        ``fanflat`` source sits at ``DSO·(sin θ, −cos θ)``, the detector centre at ``ODD·(−sin θ,
+        cos θ)``, column steps along ``w·(cos θ, sin θ)`` (as ``astra.geom_2vec`` writes them);
+        an image's row 0 is the *largest* y. Convert arrays with :func:`astra_image` and
+        :func:`astra_sinogram`.
+
+        3-D, from ASTRA's CUDA kernels (its only 3-D projectors; no GPU checked them here): a
+        ``cone`` source at ``DSO·(sin θ, −cos θ, 0)``, detector centre ``ODD·(−sin θ, cos θ, 0)``,
+        ``u = DetectorSpacingX·(cos θ, sin θ, 0)``, ``v = (0, 0, DetectorSpacingY)``;
+        ``parallel3d`` the same with rays along ``(−sin θ, cos θ, 0)`` and the detector centre at
+        the origin. Volumes ``[slice][row][col]`` are Prism's ``[z][y][x]`` as they are (in 3-D
+        ASTRA's row 0 is the *smallest* y, unlike its 2-D images); projections ``[row][angle][col]``
+        have row 0 at the lowest z, Prism's at the highest: convert with :func:`astra_volume` and
+        :func:`astra_projections`. The detector is therefore taken with its rows reversed (``v``
+        negated), so a ``*_vec`` geometry whose ``u × v`` does not point towards the source (as
+        ASTRA's own conversions' do) is refused as a mirrored image."""
         kind = proj_geom.get("type")
+        if kind in ("cone", "cone_vec", "parallel3d", "parallel3d_vec"):
+            return cls._from_astra_3d(proj_geom, vol_geom)
         if kind == "fanflat":
             angles = np.asarray(proj_geom["ProjectionAngles"], float).ravel()
             dso = float(proj_geom["DistanceOriginSource"])
@@ -213,10 +224,11 @@ class Geometry:
             cols = int(proj_geom["DetectorCount"])
         else:
             raise ValueError(
-                f"from_astra: proj_geom type {kind!r} is not mapped: fanflat and fanflat_vec are; "
-                "ASTRA's 3-D volume axes could not be checked without CUDA (give the vectors to "
-                "Geometry.from_vectors once their orientation is checked on your data)"
+                f"from_astra: proj_geom type {kind!r} is not mapped: fanflat, fanflat_vec, cone, "
+                "cone_vec, parallel3d and parallel3d_vec are"
             )
+        if "GridSliceCount" in vol_geom:
+            raise ValueError(f"from_astra: a {kind} geometry needs a 2-D vol_geom; this one has GridSliceCount")
         opt = vol_geom.get("option", vol_geom)
         ny, nx = int(vol_geom["GridRowCount"]), int(vol_geom["GridColCount"])
         x0, x1 = float(opt["WindowMinX"]), float(opt["WindowMaxX"])
@@ -230,6 +242,53 @@ class Geometry:
         return cls.from_vectors(
             "fan", vectors, cols=cols, volume=(1, ny, nx), voxel=(dz, dy, dx),
             volume_offset=(0.0, (y0 + y1) / 2, (x0 + x1) / 2),
+        )
+
+    @classmethod
+    def _from_astra_3d(cls, proj_geom: Mapping[str, Any], vol_geom: Mapping[str, Any]) -> "Geometry":
+        kind = str(proj_geom["type"])
+        cone = kind.startswith("cone")
+        rows, cols = int(proj_geom["DetectorRowCount"]), int(proj_geom["DetectorColCount"])
+        if kind.endswith("_vec"):
+            vectors = np.array(proj_geom["Vectors"], dtype=float, ndmin=2)
+            if vectors.ndim != 2 or vectors.shape[1] != 12:
+                raise ValueError(f"from_astra: {kind} Vectors must be [views, 12], got shape {vectors.shape}")
+        else:
+            angles = np.asarray(proj_geom["ProjectionAngles"], float).ravel()
+            s, c, o = np.sin(angles), np.cos(angles), np.zeros_like(angles)
+            du, dv = float(proj_geom["DetectorSpacingX"]), float(proj_geom["DetectorSpacingY"])
+            if cone:
+                dso = float(proj_geom["DistanceOriginSource"])
+                odd = float(proj_geom["DistanceOriginDetector"])
+                src, det = [dso * s, -dso * c, o], [-odd * s, odd * c, o]
+            else:
+                src, det = [-s, c, o], [o, o, o]
+            vectors = np.stack(src + det + [du * c, du * s, o, o, o, dv + o], axis=1)
+        # ASTRA's detector row r is Prism's row rows − 1 − r: the same pixel centres with v negated.
+        vectors[:, 9:12] *= -1.0
+        if "GridSliceCount" not in vol_geom:
+            raise ValueError(f"from_astra: a {kind} geometry needs a 3-D vol_geom (GridSliceCount missing)")
+        opt = vol_geom.get("option", vol_geom)
+        nz, ny, nx = (int(vol_geom[k]) for k in ("GridSliceCount", "GridRowCount", "GridColCount"))
+        lo = np.array([float(opt[f"WindowMin{a}"]) for a in "ZYX"])
+        hi = np.array([float(opt[f"WindowMax{a}"]) for a in "ZYX"])
+        voxel = tuple((hi - lo) / np.array([nz, ny, nx]))
+        centre = tuple((lo + hi) / 2)
+        if not cone:
+            # A parallel ray's sign changes no line integral; Prism reads the detector from the
+            # side the rays arrive at, so they travel along u × v.
+            normal = np.cross(vectors[:, 6:9], vectors[:, 9:12])
+            sign = np.sign(np.sum(normal * vectors[:, 0:3], axis=1))
+            vectors[:, 0:3] *= np.where(sign == 0, 1.0, sign)[:, None]
+            # Nor does sliding the detector along the rays; ASTRA's passes through the origin,
+            # Prism's must lie beyond the volume.
+            ray = vectors[:, 0:3] / np.linalg.norm(vectors[:, 0:3], axis=1, keepdims=True)
+            reach = float(np.linalg.norm(centre) + np.linalg.norm(hi - lo) / 2) + 1.0
+            depth = np.sum(vectors[:, 3:6] * ray, axis=1)
+            vectors[:, 3:6] += np.maximum(reach - depth, 0.0)[:, None] * ray
+        return cls.from_vectors(
+            "cone" if cone else "parallel", vectors, rows=rows, cols=cols, volume=(nz, ny, nx),
+            voxel=voxel, volume_offset=centre,
         )
 
     def to_tigre(self) -> Dict[str, Any]:
@@ -310,6 +369,34 @@ def to_astra_image(volume: np.ndarray) -> np.ndarray:
     """The inverse of :func:`astra_image`: a Prism fan volume ``[1][y][x]`` as ASTRA's
     ``[row][col]``."""
     return np.ascontiguousarray(np.asarray(volume)[0, ::-1, :], dtype=np.float32)
+
+
+def astra_volume(volume: np.ndarray) -> np.ndarray:
+    """An ASTRA 3-D volume ``[slice][row][col]`` as a Prism volume ``[z][y][x]``: the same axes
+    in the same order (ASTRA's 3-D row 0 is the smallest y, slice 0 the smallest z), float32 and
+    C-contiguous. Its own inverse."""
+    a = np.asarray(volume)
+    if a.ndim != 3:
+        raise ValueError(f"astra_volume: expected a 3-D volume [slice][row][col], got shape {a.shape}")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def astra_projections(projections: np.ndarray) -> np.ndarray:
+    """ASTRA 3-D projections ``[row][angle][col]`` (row 0 the lowest z) as Prism's
+    ``[view][row][col]`` (row 0 the highest z), float32 and C-contiguous."""
+    a = np.asarray(projections)
+    if a.ndim != 3:
+        raise ValueError(f"astra_projections: expected [row][angle][col], got shape {a.shape}")
+    return np.ascontiguousarray(a.transpose(1, 0, 2)[:, ::-1, :], dtype=np.float32)
+
+
+def to_astra_projections(projections: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`astra_projections`: Prism's ``[view][row][col]`` as ASTRA's
+    ``[row][angle][col]``."""
+    a = np.asarray(projections)
+    if a.ndim != 3:
+        raise ValueError(f"to_astra_projections: expected [view][row][col], got shape {a.shape}")
+    return np.ascontiguousarray(a[:, ::-1, :].transpose(1, 0, 2), dtype=np.float32)
 
 
 def astra_sinogram(sinogram: np.ndarray) -> np.ndarray:
