@@ -21,6 +21,7 @@
 use crate::algorithms::sart::{block_count, caches_column_sums};
 use crate::device::DeviceChoice;
 use crate::methods::classic::ClassicMethod;
+use crate::methods::naf::rays::TrainRay;
 use crate::{Method, MethodConfig};
 use prism_domain::memory::{Footprint, bytes};
 use prism_domain::scene::Scene;
@@ -28,10 +29,19 @@ use prism_domain::scene::Scene;
 /// Bytes per Gaussian at a training iteration's peak, plus 16 per density column: the
 /// parameters with gradients and two Adam moments, the render's per-Gaussian preparation, tile
 /// lists and the autodiff graph's saved tensors. Measured: the slope of peak resident size
-/// against the Gaussian count, 1 990 bytes per Gaussian (R²-Gaussian, one 70 keV channel of
-/// phantom-4mono at 64³ / 96², 100 iterations without densification from 20 000 and 53 222
-/// Gaussians: 78.4 and 142.9 MiB).
-pub const GAUSSIAN_BYTES: u64 = 1_980;
+/// against the Gaussian count on `prism bench scaling`'s 128³ scene (25 views, 128², 3
+/// channels; 10 000 → 500 000 Gaussians): R²-Gaussian 1.0 kB per Gaussian with its three
+/// channels (800 bytes and the pages kept per further channel, [`RETAINED_PER_CHANNEL`]), 4D-SG
+/// 0.82 kB between 300 000 and 500 000 with its 3 density columns. It was 1 980, measured on one
+/// channel at 64³ / 96² before the render's per-Gaussian buffers shrank; that read R²-Gaussian
+/// 122 % high at 500 000 Gaussians.
+pub const GAUSSIAN_BYTES: u64 = 800;
+
+/// What a Gaussian method's training holds whatever its Gaussian count and grid: the autodiff
+/// graph's and the render's fixed buffers, per-thread scratch, the allocator's retained arenas.
+/// Measured: the intercept of peak resident size against the Gaussian count, above the scene, the
+/// outputs and the process, 43 MB at 64³ and 55 MB at 128³ (R²-Gaussian, the sweep above).
+pub const GAUSSIAN_FIXED_BYTES: u64 = 40_000_000;
 
 /// R²-Gaussian trains the channels one after another; pages the allocator keeps from one channel
 /// stay resident beside the next channel's (they are handed back lazily, see the binary's
@@ -47,6 +57,11 @@ pub const RETAINED_PER_CHANNEL: f64 = 0.148;
 /// grows by 32 bytes per voxel and channel, of which the scene's reference and the output
 /// volume are 8.
 pub const VOXELISED_BYTES: u64 = 12;
+
+/// A reconstruction process beyond [`prism_domain::memory::PROCESS_BYTES`]: `prism recon` on a
+/// 16³ scene (16² detector, 13 views) peaks at 30 MB with FDK, SART or CGLS and 34 MB with
+/// R²-Gaussian (100 Gaussians), `prism info` on it at 14 MB.
+pub const RECON_BYTES: u64 = 10_000_000;
 
 /// Bytes per detector pixel of one view at an iteration's peak (image, target, SSIM maps).
 pub const PIXEL_BYTES: u64 = 200;
@@ -86,6 +101,10 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
     let views = scene.n_views();
     let train = scene.split.train.len();
     let mut f = Footprint::process();
+    f.add(
+        "the reconstruction's own (thread pools, kernels' tables)",
+        RECON_BYTES,
+    );
     f.add(
         format!("the scene: projections ({channels} × {views} views × {rows}×{cols})"),
         bytes(scene.projections.len(), 4),
@@ -150,23 +169,43 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 "hash-grid tables with gradients and Adam moments",
                 bytes(table, 16),
             );
-            if scene.references.is_some() {
-                add_training_scores(&mut f, voxels);
-            }
+            f.add_in(
+                TRAINING,
+                format!(
+                    "one channel's training rays ({train} views × {rows}×{cols} pixels at most)"
+                ),
+                bytes(train * view_pixels, std::mem::size_of::<TrainRay>()),
+            );
             let samples = c.rays_per_batch.saturating_mul(c.samples_per_ray);
             // On the CPU the MLP is one fused op whose activations live per 512-point task: a
-            // sample holds its point, its output, and three encoding-sized buffers (the
-            // encodings and their gradient are two; the third is measured: at 64³ a run peaks at
-            // 146 MB where two estimated 117). On wgpu the MLP is composed of tensor ops, every
-            // layer's activations kept for the backward.
+            // sample holds its point, its output, and five encoding-sized buffers (the
+            // encodings and their gradient are two, the encoder's own buffers the rest; measured:
+            // the peak less the scene, the outputs and the other items, 64³ to 160³ at 128²,
+            // 65 MB for 98 304 samples). On wgpu the MLP is composed of tensor ops, every layer's
+            // activations kept for the backward.
             let per_sample = match c.device {
-                DeviceChoice::Cpu => 4 * (3 * h.levels * h.features + 8),
+                DeviceChoice::Cpu => 4 * (5 * h.levels * h.features + 8),
                 DeviceChoice::Wgpu => 8 * (c.field.width * c.field.layers + h.levels * h.features),
+            };
+            // The log scores a channel between iterations, when the batch's buffers are freed:
+            // the larger of the two counts.
+            let batch = bytes(samples, per_sample);
+            let scores = if scene.references.is_some() {
+                bytes(voxels, VOXEL_BYTES as usize)
+            } else {
+                0
             };
             f.add_in(
                 TRAINING,
-                format!("one batch of {samples} samples through the field (forward and backward)"),
-                bytes(samples, per_sample),
+                if scores > batch {
+                    "scoring one channel during training (its volume, the normalised copies)"
+                        .to_string()
+                } else {
+                    format!(
+                        "one batch of {samples} samples through the field (forward and backward)"
+                    )
+                },
+                batch.max(scores),
             );
         }
     }
@@ -179,6 +218,10 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
             Method::FourDsg => channels,
             _ => 1,
         };
+        f.add(
+            "the Gaussian training's fixed buffers (graph, scratch, retained arenas)",
+            GAUSSIAN_FIXED_BYTES,
+        );
         add_fdk(&mut f, voxels, train * view_pixels);
         if c.eval_every > 0 && scene.references.is_some() {
             add_training_scores(&mut f, voxels);
@@ -255,6 +298,12 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 ),
                 bytes(voxels, (VOXELISED_BYTES * channels as u64) as usize),
             );
+            // Measured: without it 4D-SG with 8 channels at 128³ read 25 % low.
+            f.add_in(
+                SCORING,
+                "the training's Gaussian pages, still resident (freed lazily)",
+                bytes(k, (GAUSSIAN_BYTES + 16 * columns as u64) as usize),
+            );
         }
     }
     f
@@ -275,7 +324,7 @@ fn add_fdk(f: &mut Footprint, voxels: usize, train_pixels: usize) {
 fn add_training_scores(f: &mut Footprint, voxels: usize) {
     f.add_in(
         TRAINING,
-        "scoring one channel during training (its volume, SSIM maps)",
+        "scoring one channel during training (its volume, the normalised copies)",
         bytes(voxels, VOXEL_BYTES as usize),
     );
 }
