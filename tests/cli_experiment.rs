@@ -431,6 +431,12 @@ fn the_html_report_is_browsable_offline() {
     assert_eq!(set["title"], "p4, 3 views, noise shipped");
     assert_eq!(set["shape"], serde_json::json!([16, 16, 16]));
     assert_eq!(set["channels"].as_array().unwrap().len(), 4);
+    assert!(
+        set["channels"][0]["reference"]
+            .as_str()
+            .is_some_and(|u| u.starts_with("data:image/png;base64,")),
+        "the scene's reference is shown"
+    );
     let methods: Vec<&str> = set["methods"]
         .as_array()
         .unwrap()

@@ -87,7 +87,8 @@ def main() -> int:
             return int(d.execute_script("return Number(document.body.dataset.renders || 0)"))
 
         before = digest(panels())
-        check("panels", len(before) >= 2 and "reference" in before, sorted(before))
+        # A page of runs made without --scene has no reference panel (and no residual view).
+        check("panels", len(before) >= 1, sorted(before))
         z = d.find_element(By.ID, "pv-z")
         label0 = d.find_element(By.ID, "pv-z-label").text
         d.execute_script("arguments[0].scrollIntoView({block: 'start'})", d.find_element(By.ID, "slice-viewer"))
