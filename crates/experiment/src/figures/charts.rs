@@ -54,6 +54,21 @@ pub struct Panel {
     pub x_ticks: Option<Vec<(f64, String)>>,
 }
 
+impl Panel {
+    /// Mean PSNR (dB) against training time (s, log axis): the runs' learning curves.
+    pub fn psnr_time(title: impl Into<String>, series: Vec<Series>) -> Self {
+        Panel {
+            title: title.into(),
+            x_label: "training time (s, log)".into(),
+            y_label: "mean PSNR (dB)".into(),
+            log_x: true,
+            log_y: false,
+            series,
+            x_ticks: None,
+        }
+    }
+}
+
 /// A grid of panels.
 #[derive(Clone, Debug)]
 pub struct Lines {

@@ -51,15 +51,7 @@ pub fn write_runs_page(
             title: "Mean PSNR against training time".into(),
             cols: 1,
             panel: (640, 400),
-            panels: vec![Panel {
-                title: String::new(),
-                x_label: "training time (s, log)".into(),
-                y_label: "mean PSNR (dB)".into(),
-                log_x: true,
-                log_y: false,
-                series,
-                x_ticks: None,
-            }],
+            panels: vec![Panel::psnr_time("", series)],
         };
         let data = data_dir(page);
         std::fs::create_dir_all(&data).map_err(|e| crate::Error::io(&data, e))?;
@@ -78,7 +70,6 @@ pub fn write_runs_page(
             Some(s) => format!("{} runs on {}", runs.len(), s.display()),
             None => format!("{} runs (no scene given: no reference)", runs.len()),
         },
-        channels: Vec::new(),
         scene: scene.map(Path::to_path_buf),
         methods: runs
             .iter()

@@ -27,9 +27,6 @@ pub const VOXELS: usize = 1 << 21;
 #[derive(Clone, Debug)]
 pub struct SliceSet {
     pub title: String,
-    /// The channels shown (labels, as volume files are named); empty: every channel of the
-    /// scene, else of the methods, in their order.
-    pub channels: Vec<String>,
     /// The scene directory whose reference volumes are shown and subtracted; without one the
     /// viewer shows the methods' volumes only.
     pub scene: Option<PathBuf>,
@@ -176,11 +173,8 @@ impl Shown {
 }
 
 impl SliceSet {
-    /// The channels shown: as given, else the scene's, else every method's in first-seen order.
+    /// The channels shown: the scene's, else every method's in first-seen order.
     fn channel_labels(&self, scene: Option<&Scene>) -> Vec<String> {
-        if !self.channels.is_empty() {
-            return self.channels.clone();
-        }
         if let Some(sc) = scene {
             return sc.channels.iter().map(|c| c.label.clone()).collect();
         }
@@ -193,20 +187,36 @@ impl SliceSet {
         labels
     }
 
+    /// `[nz, ny, nx]` of the set: the references', else the first method volume's.
+    fn shape(&self, scene: Option<&Scene>) -> Result<[usize; 3]> {
+        if let Some(r) = scene.and_then(|sc| sc.references.as_ref()) {
+            return Ok([r.shape()[1], r.shape()[2], r.shape()[3]]);
+        }
+        let first = self
+            .methods
+            .iter()
+            .flat_map(|m| &m.channels)
+            .find(|c| c.volume.exists())
+            .ok_or_else(|| {
+                Error::invalid(
+                    "html",
+                    format!("{}: no volume of any method to show", self.title),
+                )
+            })?;
+        let v: Array3<f32> = prism_domain::scene::npy::read_array(&first.volume, "volume")?;
+        Ok([v.shape()[0], v.shape()[1], v.shape()[2]])
+    }
+
     /// Read the set's volumes and encode them (one channel's volumes in memory at a time).
     pub(crate) fn encode(&self) -> Result<SetData> {
         let scene = match &self.scene {
             Some(dir) => Some(Scene::load(dir)?),
             None => None,
         };
-        let mut notes = Vec::new();
-        let mut shape = None;
-        if let Some(sc) = &scene
-            && let Some(r) = &sc.references
-        {
-            shape = Some([r.shape()[1], r.shape()[2], r.shape()[3]]);
-        }
         let labels = self.channel_labels(scene.as_ref());
+        let shape = self.shape(scene.as_ref())?;
+        let (slices, cols) = layout(shape);
+        let mut notes = Vec::new();
         let mut methods: Vec<MethodData> = self
             .methods
             .iter()
@@ -221,7 +231,6 @@ impl SliceSet {
             })
             .collect();
         let mut channels = Vec::new();
-        let mut layout_of = None;
         for label in &labels {
             let reference: Option<Array3<f32>> = scene.as_ref().and_then(|sc| {
                 let i = sc.channels.iter().position(|ch| &ch.label == label)?;
@@ -229,84 +238,55 @@ impl SliceSet {
             });
             let mut volumes: Vec<Option<Array3<f32>>> = Vec::new();
             for m in &self.methods {
-                let v = match m.channel(label).map(|c| &c.volume) {
-                    Some(path) if path.exists() => {
+                let path = m.channel(label).map(|c| &c.volume).filter(|p| p.exists());
+                let v = match path {
+                    Some(path) => {
                         let v: Array3<f32> = prism_domain::scene::npy::read_array(path, "volume")?;
-                        let s = [v.shape()[0], v.shape()[1], v.shape()[2]];
-                        match shape {
-                            None => {
-                                shape = Some(s);
-                                Some(v)
-                            }
-                            Some(want) if want == s => Some(v),
-                            Some(want) => {
-                                notes.push(format!(
-                                    "{} {label}: {} is {s:?}, the others {want:?}: not shown",
-                                    m.label,
-                                    path.display()
-                                ));
-                                None
-                            }
+                        if v.shape() == shape {
+                            Some(v)
+                        } else {
+                            notes.push(format!(
+                                "{} {label}: {} is {:?}, the set {shape:?}: not shown",
+                                m.label,
+                                path.display(),
+                                v.shape()
+                            ));
+                            None
                         }
                     }
-                    _ => None,
+                    None => None,
                 };
                 volumes.push(v);
             }
-            let Some(shape) = shape else {
-                continue;
+            let errors: Vec<Option<Array3<f32>>> = volumes
+                .iter()
+                .map(|v| Some(v.as_ref()? - reference.as_ref()?))
+                .collect();
+            let kept = |v: &Array3<f32>| -> Vec<f32> {
+                slices
+                    .iter()
+                    .flat_map(|&z| v.index_axis(Axis(0), z).into_iter().copied())
+                    .collect()
             };
-            let (slices, cols) = layout_of.get_or_insert_with(|| layout(shape)).clone();
-            let basis = reference
+            let hi = reference
                 .as_ref()
-                .or_else(|| volumes.iter().flatten().next());
-            let hi = basis
-                .map(|b| {
-                    quantile(
-                        slices
-                            .iter()
-                            .flat_map(|&z| b.index_axis(Axis(0), z).into_iter().copied()),
-                        0.999,
-                    )
-                })
-                .unwrap_or(0.0)
+                .or_else(|| volumes.iter().flatten().next())
+                .map_or(0.0, |b| quantile(kept(b).into_iter(), 0.999))
                 .max(1e-6);
             let (lo, top) = image_range(hi);
-            let rmax = match &reference {
-                Some(r) => quantile(
-                    volumes.iter().flatten().flat_map(|v| {
-                        slices.iter().flat_map(move |&z| {
-                            v.index_axis(Axis(0), z)
-                                .into_iter()
-                                .zip(r.index_axis(Axis(0), z))
-                                .map(|(a, b)| (a - b).abs())
-                                .collect::<Vec<_>>()
-                        })
-                    }),
-                    0.99,
-                ),
-                None => 0.0,
-            }
-            .max(hi * 1e-4);
-            let png = |v: ArrayView3<f32>, f: &dyn Fn(f32) -> u8| -> Result<String> {
-                Ok(data_url("image/png", &atlas(v, &slices, cols, f)?))
+            let rmax =
+                quantile(errors.iter().flatten().flat_map(kept).map(f32::abs), 0.99).max(hi * 1e-4);
+            let png = |v: &Array3<f32>, f: &dyn Fn(f32) -> u8| -> Result<String> {
+                Ok(data_url("image/png", &atlas(v.view(), &slices, cols, f)?))
             };
-            let reference_url = match &reference {
-                Some(r) => Some(png(r.view(), &|v| image_level(v, lo, top))?),
-                None => None,
-            };
-            for (m, v) in methods.iter_mut().zip(&volumes) {
-                m.images.push(match v {
-                    Some(v) => Some(png(v.view(), &|x| image_level(x, lo, top))?),
-                    None => None,
-                });
-                m.residuals.push(match (v, &reference) {
-                    (Some(v), Some(r)) => {
-                        let e = v - r;
-                        Some(png(e.view(), &|x| residual_level(x, rmax))?)
-                    }
-                    _ => None,
-                });
+            let image = |v: &Array3<f32>| png(v, &|x| image_level(x, lo, top));
+            for ((m, v), e) in methods.iter_mut().zip(&volumes).zip(&errors) {
+                m.images.push(v.as_ref().map(image).transpose()?);
+                m.residuals.push(
+                    e.as_ref()
+                        .map(|e| png(e, &|x| residual_level(x, rmax)))
+                        .transpose()?,
+                );
             }
             channels.push(ChannelData {
                 label: label.clone(),
@@ -314,16 +294,9 @@ impl SliceSet {
                 top,
                 hi,
                 rmax,
-                reference: reference_url,
+                reference: reference.as_ref().map(image).transpose()?,
             });
         }
-        let Some(shape) = shape else {
-            return Err(Error::invalid(
-                "html",
-                format!("{}: no volume of any method to show", self.title),
-            ));
-        };
-        let (slices, cols) = layout_of.unwrap_or_else(|| layout(shape));
         Ok(SetData {
             title: self.title.clone(),
             shape,

@@ -83,7 +83,6 @@ fn slice_sets(loaded: &LoadedSuite, plan: &Plan, out: &Path) -> Result<Vec<Slice
                 cell.views,
                 cell.noise
             ),
-            channels: Vec::new(),
             scene: Some(dir),
             methods,
         });

@@ -159,15 +159,10 @@ pub(super) fn psnr_time(ctx: &mut Context, i: usize, views: usize, noise: &str) 
                 });
             }
         }
-        panels.push(Panel {
-            title: ctx.loaded.suite.scene_label(scene).to_string(),
-            x_label: "training time (s, log)".into(),
-            y_label: "mean PSNR (dB)".into(),
-            log_x: true,
-            log_y: false,
+        panels.push(Panel::psnr_time(
+            ctx.loaded.suite.scene_label(scene),
             series,
-            x_ticks: None,
-        });
+        ));
     }
     let fig = Lines {
         title: format!("PSNR against training time, {views} views, noise {noise}, seed {seed}"),

@@ -198,8 +198,7 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
             f.add_in(
                 TRAINING,
                 if scores > batch {
-                    "scoring one channel during training (its volume, the normalised copies)"
-                        .to_string()
+                    TRAINING_SCORES.to_string()
                 } else {
                     format!(
                         "one batch of {samples} samples through the field (forward and backward)"
@@ -218,6 +217,8 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
             Method::FourDsg => channels,
             _ => 1,
         };
+        // The Gaussians with their gradients, Adam moments and an iteration's transients.
+        let gaussians = bytes(k, (GAUSSIAN_BYTES + 16 * columns as u64) as usize);
         f.add(
             "the Gaussian training's fixed buffers (graph, scratch, retained arenas)",
             GAUSSIAN_FIXED_BYTES,
@@ -233,7 +234,7 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                  Adam moments and an iteration's transients",
                 c.init.n_points
             ),
-            bytes(k, (GAUSSIAN_BYTES + 16 * columns as u64) as usize),
+            gaussians,
         );
         if config.method() == Method::R2gs && channels > 1 {
             let working = bytes(k, GAUSSIAN_BYTES as usize) as f64;
@@ -302,7 +303,7 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
             f.add_in(
                 SCORING,
                 "the training's Gaussian pages, still resident (freed lazily)",
-                bytes(k, (GAUSSIAN_BYTES + 16 * columns as u64) as usize),
+                gaussians,
             );
         }
     }
@@ -319,12 +320,15 @@ fn add_fdk(f: &mut Footprint, voxels: usize, train_pixels: usize) {
     );
 }
 
+const TRAINING_SCORES: &str =
+    "scoring one channel during training (its volume, the normalised copies)";
+
 /// Scoring a channel during training (the log's PSNR and SSIM every `eval_every` iterations),
 /// beside the training state.
 fn add_training_scores(f: &mut Footprint, voxels: usize) {
     f.add_in(
         TRAINING,
-        "scoring one channel during training (its volume, the normalised copies)",
+        TRAINING_SCORES,
         bytes(voxels, VOXEL_BYTES as usize),
     );
 }

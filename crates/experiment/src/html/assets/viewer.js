@@ -76,7 +76,7 @@ const PrismViewer = (() => {
     state.hi = Math.min(255, level(c, c.hi));
   }
 
-  function colours(c) {
+  function colours() {
     const lo = state.lo;
     const hi = Math.max(state.hi, lo + 1);
     const grey = [];
@@ -92,7 +92,7 @@ const PrismViewer = (() => {
       t = Math.abs(t);
       diverging.push(end.map((e) => Math.round(255 + (e - 255) * t)));
     }
-    return { grey, diverging, c };
+    return { grey, diverging };
   }
 
   // The panels of the current set and channel: the reference, then every method shown.
@@ -173,7 +173,7 @@ const PrismViewer = (() => {
     if (!d) return;
     const [nz, ny, nx] = d.shape;
     const c = d.channels[state.channel];
-    const map = colours(c);
+    const map = colours();
     const tx = state.k % d.cols;
     const ty = Math.floor(state.k / d.cols);
     for (const p of d.shown) {
