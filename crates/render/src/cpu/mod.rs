@@ -1,9 +1,11 @@
 //! CPU kernels (rayon) shared by the NdArray and Flex backends: slices in, `Vec`s out.
 //!
-//! Both passes bin Gaussians into tiles first (no per-pixel scan of all Gaussians). The forward
-//! pass owns one tile per task and sums its Gaussians in any order (no atomics, no depth sort);
-//! the backward pass writes per-(tile, Gaussian) partial sums into disjoint slices, then gathers
-//! them per Gaussian — there are no shared writes anywhere.
+//! The projection bins Gaussians into detector tiles first (no per-pixel scan of all Gaussians).
+//! Its forward pass owns one tile per task and sums its Gaussians in index order (no atomics, no
+//! depth sort); its backward pass writes per-(tile, Gaussian) partial sums into disjoint slices,
+//! then gathers them per Gaussian. The voxelizer bins Gaussians into z-slabs for its forward pass
+//! and walks each Gaussian's own voxel box in its backward pass (`voxelize.rs`). There are no
+//! shared writes anywhere.
 
 mod lanes;
 mod project;

@@ -584,8 +584,8 @@ fn voxelize_matches_direct_evaluation() {
 
 #[test]
 fn voxelize_gradients_match_central_differences() {
-    // Two channels exercise the channel loops, one channel its own path; the grid has partial
-    // tiles on every axis.
+    // Two channels exercise the channel loops, one channel its own path; the grid ends inside a
+    // lane block and a slab, and the boxes span several blocks and more than 64 rows (a flush).
     for m in [2, 1] {
         let k = 3;
         let p = Params::random(k, m, 3.0, (1.0, 2.5), 31);

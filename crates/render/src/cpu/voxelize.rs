@@ -5,6 +5,16 @@
 //! inverse (a factor dV² too small); that quirk is deliberately not reproduced. No absolute skip
 //! threshold either: a voxel receives a Gaussian iff it lies within the Mahalanobis cut-off, so
 //! tiny densities (1e-8) are not silently dropped.
+//!
+//! Both passes walk a Gaussian's voxel box row by row (x fastest), in lane blocks that start at
+//! the box's own first x: a row no wider than a block is evaluated once, wherever it lies (a
+//! grid-aligned tile would split most rows of a 3σ box in two). Rows whose `y, z` part alone
+//! exceeds the cut-off are skipped.
+//! * The forward pass bins Gaussians into slabs of [`SLAB`] z-slices and owns one slab per task;
+//!   a slab sums its Gaussians in index order, so every voxel's sum has the same order (and
+//!   value) however the grid is split.
+//! * The backward pass owns one Gaussian per task and reads the upstream gradient along the
+//!   same rows: its sums are its own, so nothing is stored per (Gaussian, slab) or gathered.
 
 use rayon::prelude::*;
 
@@ -16,12 +26,12 @@ use super::tiles::{Bins, TileBox, tile_span};
 use crate::gaussian_math::{self as gm, voxel_backward};
 use crate::options::{VoxelGrid, VoxelizeOptions};
 
-/// Voxel tile edge: one lane block per x-row.
-pub const TILE: usize = LANES;
+/// z-slices per forward task.
+const SLAB: usize = 4;
 
-/// Elements of a tile buffer per channel: rows are stored `TILE` wide whatever the tile's width
-/// (voxels past a grid edge stay 0), so every row is one lane block.
-const TILE_VOXELS: usize = TILE * TILE * TILE;
+/// Rows summed in f32 lanes before the backward moments are widened into f64 (bounds the f32
+/// rounding of a large Gaussian's sums to that of 64 terms per lane).
+const FLUSH_ROWS: usize = 64;
 
 /// Gradients of a voxelization with respect to every input, row-major like the inputs.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -43,39 +53,14 @@ struct VoxSplat {
     hi: [usize; 3],
 }
 
-struct TileGrid {
-    dims: [usize; 3],
-    tiles: [usize; 3],
-}
-
-impl TileGrid {
-    fn new(grid: &VoxelGrid) -> Self {
-        Self {
-            dims: grid.dims,
-            tiles: grid.dims.map(|n| n.div_ceil(TILE)),
-        }
-    }
-
-    fn n_tiles(&self) -> usize {
-        self.tiles.iter().product()
-    }
-
-    /// Voxel box `[lo, hi)` of tile `t`.
-    fn tile_box(&self, t: usize) -> ([usize; 3], [usize; 3]) {
-        let tx = t % self.tiles[0];
-        let ty = (t / self.tiles[0]) % self.tiles[1];
-        let tz = t / (self.tiles[0] * self.tiles[1]);
-        let lo = [tx * TILE, ty * TILE, tz * TILE];
-        let hi = [0, 1, 2].map(|a| (lo[a] + TILE).min(self.dims[a]));
-        (lo, hi)
+impl VoxSplat {
+    /// The first x of each lane block covering the box.
+    fn blocks(&self) -> impl Iterator<Item = usize> {
+        (self.lo[0]..self.hi[0]).step_by(LANES)
     }
 }
 
-fn prepare(
-    g: &GaussianSlices,
-    grid: &VoxelGrid,
-    cutoff: f64,
-) -> (Vec<Option<VoxSplat>>, Vec<Option<TileBox>>) {
+fn prepare(g: &GaussianSlices, grid: &VoxelGrid, cutoff: f64) -> Vec<Option<VoxSplat>> {
     // Voxel-centre range per axis: a Gaussian whose cut-off reach (≤ cutoff · largest scale)
     // misses it is rejected before any f64 shape work — most of them for a small TV patch.
     let first = [0, 1, 2].map(|a| grid.centre(a, 0));
@@ -92,25 +77,18 @@ fn prepare(
                 c + reach < first[a] || c - reach > last[a]
             });
             if far || g.densities_of(i).is_none() {
-                return (None, None);
+                return None;
             }
-            let Some(s) = gm::voxel_splat(&g.geom(i), cutoff) else {
-                return (None, None);
-            };
+            let s = gm::voxel_splat(&g.geom(i), cutoff)?;
             let mut lo = [0; 3];
             let mut hi = [0; 3];
-            let mut tlo = [0; 3];
-            let mut thi = [0; 3];
             for a in 0..3 {
                 // Voxel i's centre is offset + (i + ½ − n/2)·d, so i = (x − offset)/d + n/2 − ½.
                 let to_index =
                     |x: f64| (x - grid.offset[a]) / grid.voxel[a] + grid.dims[a] as f64 / 2.0 - 0.5;
                 let first = to_index(s.mean[a] - s.half_extent[a]);
                 let last = to_index(s.mean[a] + s.half_extent[a]);
-                let Some((l, h, tl, th)) = tile_span(first, last, grid.dims[a], TILE) else {
-                    return (None, None);
-                };
-                (lo[a], hi[a], tlo[a], thi[a]) = (l, h, tl, th);
+                (lo[a], hi[a], _, _) = tile_span(first, last, grid.dims[a], 1)?;
             }
             let q = s.quad;
             let vs = VoxSplat {
@@ -119,96 +97,112 @@ fn prepare(
                 lo,
                 hi,
             };
-            if vs.q.iter().all(|v| v.is_finite()) {
-                (Some(vs), Some(TileBox { lo: tlo, hi: thi }))
-            } else {
-                (None, None)
-            }
+            vs.q.iter().all(|v| v.is_finite()).then_some(vs)
         })
-        .unzip()
+        .collect()
 }
 
-/// Voxel-centre coordinates of one tile, per axis (f32, world units).
-struct TileCentres {
-    lo: [usize; 3],
-    hi: [usize; 3],
-    c: [[f32; TILE]; 3],
-}
+/// Voxel-centre coordinates per axis (f32, world units); x runs `LANES` past the grid, so a lane
+/// block starting at any voxel of a row has its centres.
+struct Centres([Vec<f32>; 3]);
 
-impl TileCentres {
-    fn new(grid: &VoxelGrid, tile: ([usize; 3], [usize; 3])) -> Self {
-        let mut c = [[0.0f32; TILE]; 3];
-        for a in 0..3 {
-            for (j, v) in c[a].iter_mut().enumerate() {
-                *v = grid.centre(a, tile.0[a] + j) as f32;
-            }
-        }
-        Self {
-            lo: tile.0,
-            hi: tile.1,
-            c,
-        }
+impl Centres {
+    fn new(grid: &VoxelGrid) -> Self {
+        Self([0, 1, 2].map(|a| {
+            let n = grid.dims[a] + if a == 0 { LANES } else { 0 };
+            (0..n).map(|i| grid.centre(a, i) as f32).collect()
+        }))
     }
 }
 
-/// The per-(splat, tile) constants of the row kernels, and the splat clipped to the tile.
+/// Volumes `[M][nz][ny][stride]` whose rows run `LANES` past the grid's `nx` (`stride = nx +
+/// LANES`), so a lane block starting at any voxel of a row lies inside its row.
+struct Padded {
+    dims: [usize; 3],
+    stride: usize,
+}
+
+impl Padded {
+    fn new(dims: [usize; 3]) -> Self {
+        Self {
+            dims,
+            stride: dims[0] + LANES,
+        }
+    }
+
+    fn channel_len(&self) -> usize {
+        self.dims[1] * self.dims[2] * self.stride
+    }
+
+    /// Offset of voxel `(x, y, z)` of channel `c`.
+    #[inline(always)]
+    fn at(&self, c: usize, x: usize, y: usize, z: usize) -> usize {
+        c * self.channel_len() + (z * self.dims[1] + y) * self.stride + x
+    }
+}
+
+/// What the row kernels of one pass read besides the splat: the voxel centres, the padded
+/// layout of the volume they write or read, and the squared cut-off.
+#[derive(Clone, Copy)]
+struct Pass<'a> {
+    centres: &'a Centres,
+    pad: &'a Padded,
+    cut2: f32,
+}
+
+/// The per-(splat, lane block) constants of the row kernels.
 struct VoxBlock<L> {
-    /// x offsets `centre − mean` of the tile's lanes.
+    /// x offsets `centre − mean` of the block's lanes.
     dx: L,
     /// `−½ d0` (the x weight of the factored precision).
     neg_half_d0: L,
-    /// `−½ cut²` on the splat's clipped lanes and `+∞` elsewhere (one compare applies both).
+    /// `−½ cut²` on the lanes inside the splat's box and `+∞` elsewhere (one compare applies
+    /// both).
     neg_half_cut: L,
-    /// Clipped voxel box `[lo, hi)` per axis (grid indices).
-    lo: [usize; 3],
-    hi: [usize; 3],
 }
 
 impl<L: Lanes> VoxBlock<L> {
-    /// `None` if `s` misses the tile.
+    /// The block of `s` whose first lane is voxel `x0`.
     #[inline(always)]
-    fn new(s: &VoxSplat, t: &TileCentres, cut2: f32) -> Option<Self> {
-        let lo = [0, 1, 2].map(|a| s.lo[a].max(t.lo[a]));
-        let hi = [0, 1, 2].map(|a| s.hi[a].min(t.hi[a]));
-        if (0..3).any(|a| lo[a] >= hi[a]) {
-            return None;
-        }
-        let lanes = (lo[0] - t.lo[0])..(hi[0] - t.lo[0]);
-        let cut: [f32; TILE] = std::array::from_fn(|j| {
-            if lanes.contains(&j) {
-                -0.5 * cut2
+    fn new(s: &VoxSplat, pass: Pass<'_>, x0: usize) -> Self {
+        let inside = s.hi[0] - x0;
+        let cut: [f32; LANES] = std::array::from_fn(|j| {
+            if j < inside {
+                -0.5 * pass.cut2
             } else {
                 f32::INFINITY
             }
         });
-        Some(Self {
-            dx: L::load(&t.c[0]).add(L::splat(-s.mean[0])),
+        let xs: &[f32; LANES] = pass.centres.0[0][x0..x0 + LANES]
+            .try_into()
+            .expect("padded centres");
+        Self {
+            dx: L::load(xs).add(L::splat(-s.mean[0])),
             neg_half_d0: L::splat(-0.5 * s.q[0]),
             neg_half_cut: L::load(&cut),
-            lo,
-            hi,
-        })
+        }
     }
 
-    /// Visit the splat's rows in the tile: `f(row offset in the tile buffer, dy, dz, G)` with
-    /// `G = exp(−½ dᵀΣ⁻¹d)` on the row's lanes (`d = centre − mean`), exactly +0 beyond the
-    /// cut-off and outside the clipped box. The form is the factored
+    /// Visit the splat's rows with `z` in `zs`: `f(y, z, dy, dz, G)` with
+    /// `G = exp(−½ dᵀΣ⁻¹d)` on the block's lanes (`d = centre − mean`), exactly +0 beyond the
+    /// cut-off and outside the box. The form is the factored
     /// `d0 (dx + l01 dy + l02 dz)² + d1 (dy + l12 dz)² + d2 dz²`; a row whose `y, z` part alone
     /// exceeds the cut-off is skipped (every lane of it would be +0).
     #[inline(always)]
     fn rows(
         &self,
         s: &VoxSplat,
-        t: &TileCentres,
-        cut2: f32,
-        mut f: impl FnMut(usize, f32, f32, L),
+        pass: Pass<'_>,
+        zs: std::ops::Range<usize>,
+        mut f: impl FnMut(usize, usize, f32, f32, L),
     ) {
+        let (c, cut2) = (pass.centres, pass.cut2);
         let [_, l01, l02, d1, l12, d2] = s.q;
-        for z in self.lo[2]..self.hi[2] {
-            let dz = t.c[2][z - t.lo[2]] - s.mean[2];
+        for z in zs {
+            let dz = c.0[2][z] - s.mean[2];
             let qz = d2 * dz * dz;
-            for y in self.lo[1]..self.hi[1] {
-                let dy = t.c[1][y - t.lo[1]] - s.mean[1];
+            for y in s.lo[1]..s.hi[1] {
+                let dy = c.0[1][y] - s.mean[1];
                 let e1 = dy + l12 * dz;
                 let qyz = d1 * e1 * e1 + qz;
                 if (cut2 - qyz).partial_cmp(&0.0) == Some(std::cmp::Ordering::Less) {
@@ -217,75 +211,111 @@ impl<L: Lanes> VoxBlock<L> {
                 let e0 = self.dx.add(L::splat(l01 * dy + l02 * dz));
                 let nhq = self.neg_half_d0.mul(e0).mul_add(e0, L::splat(-0.5 * qyz));
                 let g = nhq.exp_neg().keep_le(self.neg_half_cut, nhq);
-                f(((z - t.lo[2]) * TILE + (y - t.lo[1])) * TILE, dy, dz, g);
+                f(y, z, dy, dz, g);
             }
         }
     }
 }
 
-/// The `TILE`-lane block of `v` at offset `o`.
+/// The `LANES`-wide block of `v` at offset `o`.
 #[inline(always)]
-fn block(v: &[f32], o: usize) -> &[f32; TILE] {
-    v[o..o + TILE].try_into().expect("TILE-wide block")
+fn block(v: &[f32], o: usize) -> &[f32; LANES] {
+    v[o..o + LANES].try_into().expect("lane block")
 }
 
 dispatched! {
-    /// Forward of splat `s` into the tile buffer `buf` (`[M][TILE_VOXELS]`) with densities `w`.
-    fn voxel_forward(s: &VoxSplat, t: &TileCentres, cut2: f32, w: &[f32], buf: &mut [f32]) {
-        let Some(vb) = VoxBlock::<L>::new(s, t, cut2) else {
-            return;
-        };
+    /// Forward of splat `s`'s rows with `z` in `zs` into the slab buffer `buf` (laid out by
+    /// `pass.pad`, z counted from the slab's first slice `z0`) with densities `w`.
+    fn voxel_forward(
+        s: &VoxSplat,
+        pass: Pass<'_>,
+        z0: usize,
+        zs: std::ops::Range<usize>,
+        w: &[f32],
+        buf: &mut [f32],
+    ) {
         let finite = w.iter().all(|w| w.is_finite());
-        vb.rows(s, t, cut2, |p, _, _, g| {
-            for (c, &w) in w.iter().enumerate() {
-                let o = c * TILE_VOXELS + p;
-                let add = L::splat(w).mul(g).zero_outside(g, finite);
-                let row: &mut [f32; TILE] = (&mut buf[o..o + TILE]).try_into().expect("row");
-                L::load(row).add(add).store(row);
-            }
-        });
+        for x0 in s.blocks() {
+            let vb = VoxBlock::<L>::new(s, pass, x0);
+            vb.rows(s, pass, zs.clone(), |y, z, _, _, g| {
+                for (ch, &w) in w.iter().enumerate() {
+                    let o = pass.pad.at(ch, x0, y, z - z0);
+                    let add = L::splat(w).mul(g).zero_outside(g, finite);
+                    let row: &mut [f32; LANES] =
+                        (&mut buf[o..o + LANES]).try_into().expect("row");
+                    L::load(row).add(add).store(row);
+                }
+            });
+        }
     }
 }
 
+/// Widen the f32 lane sums of `w = Σ_c ρ_c g_c G` moments (and the per-channel `g_c G` in
+/// `lanes`) into `acc` and zero them; `dx` are the block's x offsets (fixed per lane, so the x
+/// moments follow here: `Σ wG dx = Σ_lanes dx · Σ_rows wG`, and so on). With one channel the
+/// sums are of `g G`, and `ρ` is applied here (`S_0` is then the zeroth moment itself).
+#[inline(always)]
+fn flush<L: Lanes>(
+    dx: L,
+    sums: &mut [L; 6],
+    lanes: &mut [[f32; LANES]],
+    dens: &[f32],
+    acc: &mut [f64],
+) {
+    let m = dens.len();
+    let [a, ay, az, ayy, ayz, azz] = *sums;
+    let [sw, x, xx, y, xy, yy] = L::moments(dx, a, ay, ayy);
+    let [_, _, _, zs, xz, zz] = L::moments(dx, a, az, azz);
+    let yz = ayz.sum();
+    let scale = if m == 1 {
+        acc[0] += sw;
+        dens[0] as f64
+    } else {
+        for (o, l) in acc.iter_mut().zip(lanes.iter_mut()) {
+            *o += L::load(l).sum();
+            *l = [0.0; LANES];
+        }
+        1.0
+    };
+    let moments = [x, y, zs, xx, xy, xz, yy, yz, zz];
+    for (o, v) in acc[m..m + 9].iter_mut().zip(moments) {
+        *o += scale * v;
+    }
+    *sums = [L::zero(); 6];
+}
+
 dispatched! {
-    /// Backward partial sums of splat `s` over one tile into `acc`
+    /// Backward sums of splat `s` over its lane block starting at voxel `x0`, added to `acc`
     /// (`[S_0..S_{M-1}, Σ wG d (3), Σ wG d dᵀ packed xx, xy, xz, yy, yz, zz]`, `w = Σ_c ρ_c g_c`,
-    /// `S_c = Σ g_c G`) from the tile's upstream gradient `grad` (`[M][TILE_VOXELS]`).
+    /// `S_c = Σ g_c G`) from the upstream gradient `grad` (laid out by `pass.pad`); `lanes` is
+    /// scratch of `M` lane blocks, zero on entry and on return.
     ///
-    /// Lane accumulators of `wG`, `wG dy`, `wG dz`, `wG dy²`, `wG dy dz`, `wG dz²` (and `g_c G`);
-    /// a lane's `dx` is fixed, so the x moments follow at the reduction (`Σ wG dx = Σ_lanes
-    /// dx · Σ_rows wG`, and so on). With one channel the sums are of `g G` and `ρ` is applied
-    /// after the reduction (`S_0` is then the zeroth moment itself).
+    /// Lane accumulators of `wG`, `wG dy`, `wG dz`, `wG dy²`, `wG dy dz`, `wG dz²` (and `g_c G`),
+    /// widened into f64 every [`FLUSH_ROWS`] rows.
     fn voxel_backward_sums(
         s: &VoxSplat,
-        t: &TileCentres,
-        cut2: f32,
+        pass: Pass<'_>,
+        x0: usize,
         grad: TileGrad<'_>,
         dens: &[f32],
-        lanes: &mut [[f32; TILE]],
+        lanes: &mut [[f32; LANES]],
         acc: &mut [f64],
     ) {
-        let TileGrad { values: gt, finite } = grad;
-        let m = dens.len();
-        let single = m == 1;
-        acc.fill(0.0);
-        let Some(vb) = VoxBlock::<L>::new(s, t, cut2) else {
-            return;
-        };
-        let z = L::zero();
-        let (mut a, mut ay, mut az, mut ayy, mut ayz, mut azz) = (z, z, z, z, z, z);
-        if !single {
-            lanes.iter_mut().for_each(|l| *l = [0.0; TILE]);
-        }
-        vb.rows(s, t, cut2, |p, dy, dz, g| {
+        let TileGrad { values: gv, finite } = grad;
+        let single = dens.len() == 1;
+        let pad = pass.pad;
+        let vb = VoxBlock::<L>::new(s, pass, x0);
+        let mut sums = [L::zero(); 6];
+        let mut rows = 0;
+        vb.rows(s, pass, s.lo[2]..s.hi[2], |y, z, dy, dz, g| {
             let w = if single {
-                g.mul(L::load(block(gt, p))).zero_outside(g, finite)
+                g.mul(L::load(block(gv, pad.at(0, x0, y, z)))).zero_outside(g, finite)
             } else {
                 let mut u = L::zero();
-                for (c, &rho) in dens.iter().enumerate() {
-                    let gc = L::load(block(gt, c * TILE_VOXELS + p));
+                for (ch, &rho) in dens.iter().enumerate() {
+                    let gc = L::load(block(gv, pad.at(ch, x0, y, z)));
                     let sc = g.mul(gc).zero_outside(g, finite);
-                    L::load(&lanes[c]).add(sc).store(&mut lanes[c]);
+                    L::load(&lanes[ch]).add(sc).store(&mut lanes[ch]);
                     u = L::splat(rho).mul_add(gc, u);
                 }
                 g.mul(u).zero_outside(g, finite)
@@ -293,27 +323,21 @@ dispatched! {
             let (vy, vz) = (L::splat(dy), L::splat(dz));
             let wy = w.mul(vy);
             let wz = w.mul(vz);
-            a = a.add(w);
-            ay = ay.add(wy);
-            az = az.add(wz);
-            ayy = wy.mul_add(vy, ayy);
-            ayz = wy.mul_add(vz, ayz);
-            azz = wz.mul_add(vz, azz);
-        });
-        let [sw, x, xx, y, xy, yy] = L::moments(vb.dx, a, ay, ayy);
-        let [_, _, _, zs, xz, zz] = L::moments(vb.dx, a, az, azz);
-        let yz = ayz.sum();
-        if single {
-            acc[0] = sw;
-        } else {
-            for c in 0..m {
-                acc[c] = L::load(&lanes[c]).sum();
+            let [a, ay, az, ayy, ayz, azz] = &mut sums;
+            *a = a.add(w);
+            *ay = ay.add(wy);
+            *az = az.add(wz);
+            *ayy = wy.mul_add(vy, *ayy);
+            *ayz = wy.mul_add(vz, *ayz);
+            *azz = wz.mul_add(vz, *azz);
+            rows += 1;
+            if rows == FLUSH_ROWS {
+                flush(vb.dx, &mut sums, lanes, dens, acc);
+                rows = 0;
             }
-        }
-        let scale = if single { dens[0] as f64 } else { 1.0 };
-        let moments = [x, y, zs, xx, xy, xz, yy, yz, zz];
-        for (o, v) in acc[m..m + 9].iter_mut().zip(moments) {
-            *o = scale * v;
+        });
+        if rows > 0 {
+            flush(vb.dx, &mut sums, lanes, dens, acc);
         }
     }
 }
@@ -328,33 +352,51 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
         return out;
     }
     let cut2 = (opts.cutoff * opts.cutoff) as f32;
-    let tg = TileGrid::new(grid);
-    let (splats, boxes) = prepare(g, grid, opts.cutoff);
-    let bins = Bins::tile_lists(tg.tiles, &boxes);
-    let tiles: Vec<Vec<f32>> = (0..tg.n_tiles())
+    let splats = prepare(g, grid, opts.cutoff);
+    let centres = Centres::new(grid);
+    let [nx, ny, nz] = grid.dims;
+    let slabs = nz.div_ceil(SLAB);
+    let slab = |t: usize| (t * SLAB, ((t + 1) * SLAB).min(nz));
+    let boxes: Vec<Option<TileBox>> = splats
+        .iter()
+        .map(|s| {
+            s.map(|s| TileBox {
+                lo: [0, 0, s.lo[2] / SLAB],
+                hi: [1, 1, (s.hi[2] - 1) / SLAB + 1],
+            })
+        })
+        .collect();
+    let bins = Bins::tile_lists([1, 1, slabs], &boxes);
+    let buffers: Vec<Vec<f32>> = (0..slabs)
         .into_par_iter()
         .map(|t| {
-            let tc = TileCentres::new(grid, tg.tile_box(t));
-            let mut buf = vec![0.0f32; m * TILE_VOXELS];
+            let (z0, z1) = slab(t);
+            let pad = Padded::new([nx, ny, z1 - z0]);
+            let pass = Pass {
+                centres: &centres,
+                pad: &pad,
+                cut2,
+            };
+            let mut buf = vec![0.0f32; m * pad.channel_len()];
             for &gi in &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]] {
                 let gi = gi as usize;
                 let Some(s) = &splats[gi] else { continue };
                 let dens = &g.densities[m * gi..m * gi + m];
-                voxel_forward(s, &tc, cut2, dens, &mut buf);
+                let zs = s.lo[2].max(z0)..s.hi[2].min(z1);
+                voxel_forward(s, pass, z0, zs, dens, &mut buf);
             }
             buf
         })
         .collect();
-    let [nx, ny, _] = grid.dims;
-    for (t, buf) in tiles.iter().enumerate() {
-        let (lo, hi) = tg.tile_box(t);
-        let tw = hi[0] - lo[0];
+    for (t, buf) in buffers.iter().enumerate() {
+        let (z0, z1) = slab(t);
+        let pad = Padded::new([nx, ny, z1 - z0]);
         for c in 0..m {
-            for z in lo[2]..hi[2] {
-                for y in lo[1]..hi[1] {
-                    let src = c * TILE_VOXELS + ((z - lo[2]) * TILE + (y - lo[1])) * TILE;
-                    let dst = c * vol + (z * ny + y) * nx + lo[0];
-                    out[dst..dst + tw].copy_from_slice(&buf[src..src + tw]);
+            for z in z0..z1 {
+                for y in 0..ny {
+                    let src = pad.at(c, 0, y, z - z0);
+                    let dst = c * vol + (z * ny + y) * nx;
+                    out[dst..dst + nx].copy_from_slice(&buf[src..src + nx]);
                 }
             }
         }
@@ -381,74 +423,61 @@ pub fn voxelize_backward(
     if k == 0 || vol == 0 || m == 0 {
         return total;
     }
+    assert_eq!(
+        grad.len(),
+        m * vol,
+        "the upstream gradient is [M, nz, ny, nx]"
+    );
     let cut2 = (opts.cutoff * opts.cutoff) as f32;
-    let tg = TileGrid::new(grid);
-    let (splats, boxes) = prepare(g, grid, opts.cutoff);
-    let bins = Bins::new(tg.tiles, &boxes);
-    // Per slot: [S_0..S_{M-1}, Σ wG d (3), Σ wG d dᵀ packed (6)], w = Σ_c ρ_c g_c.
+    let splats = prepare(g, grid, opts.cutoff);
+    let centres = Centres::new(grid);
+    let nx = grid.dims[0];
+    // The upstream gradient with padded rows (zeros past the grid).
+    let pad = Padded::new(grid.dims);
+    let mut padded = vec![0.0f32; m * pad.channel_len()];
+    padded
+        .par_chunks_mut(pad.stride)
+        .zip(grad.par_chunks(nx))
+        .for_each(|(dst, src)| dst[..nx].copy_from_slice(src));
+    let pass = Pass {
+        centres: &centres,
+        pad: &pad,
+        cut2,
+    };
+    let upstream = TileGrad {
+        values: &padded,
+        finite: grad.par_iter().all(|v| v.is_finite()),
+    };
+    // Per Gaussian: [S_0..S_{M-1}, Σ wG d (3), Σ wG d dᵀ packed (6)], w = Σ_c ρ_c g_c.
     let stride = m + 9;
-    let mut slots = vec![0.0f64; bins.isects() * stride];
-    let [nx, ny, _] = grid.dims;
-    bins.split_per_tile(&mut slots, stride)
-        .into_par_iter()
+    let results: Vec<Option<([f64; 10], Vec<f64>)>> = splats
+        .par_iter()
         .enumerate()
-        .for_each(|(t, out)| {
-            let tb = tg.tile_box(t);
-            let (lo, hi) = tb;
-            let tw = hi[0] - lo[0];
-            // The tile's upstream gradient, TILE-wide rows: [M][TILE_VOXELS].
-            let mut gt = vec![0.0f32; m * TILE_VOXELS];
-            for c in 0..m {
-                for z in lo[2]..hi[2] {
-                    for y in lo[1]..hi[1] {
-                        let src = c * vol + (z * ny + y) * nx + lo[0];
-                        let dst = c * TILE_VOXELS + ((z - lo[2]) * TILE + (y - lo[1])) * TILE;
-                        gt[dst..dst + tw].copy_from_slice(&grad[src..src + tw]);
-                    }
+        .with_min_len(16)
+        .map_init(
+            || vec![[0.0f32; LANES]; m],
+            |lanes, (i, s)| {
+                let s = s.as_ref()?;
+                let dens = &g.densities[m * i..m * i + m];
+                let mut sum = vec![0.0f64; stride];
+                for x0 in s.blocks() {
+                    voxel_backward_sums(s, pass, x0, upstream, dens, lanes, &mut sum);
                 }
-            }
-            let tile_grad = TileGrad::new(&gt);
-            let tc = TileCentres::new(grid, tb);
-            let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
-            let mut lanes = vec![[0.0f32; TILE]; m];
-            for (j, &gi) in list.iter().enumerate() {
-                let gi = gi as usize;
-                let acc = &mut out[j * stride..(j + 1) * stride];
-                let Some(s) = &splats[gi] else { continue };
-                let dens = &g.densities[m * gi..m * gi + m];
-                voxel_backward_sums(s, &tc, cut2, tile_grad, dens, &mut lanes, acc);
-            }
-        });
-    let results: Vec<Option<([f64; 10], Vec<f64>)>> = (0..k)
-        .into_par_iter()
-        .map(|i| {
-            let isects = &bins.gaussian_isects[bins.gaussian_start[i]..bins.gaussian_start[i + 1]];
-            if isects.is_empty() {
-                return None;
-            }
-            let mut sum = vec![0.0f64; stride];
-            for &slot in isects {
-                for (a, b) in sum
-                    .iter_mut()
-                    .zip(&slots[slot * stride..(slot + 1) * stride])
-                {
-                    *a += b;
-                }
-            }
-            let sum_d = [sum[m], sum[m + 1], sum[m + 2]];
-            let p = &sum[m + 3..m + 9];
-            let sum_dd = [[p[0], p[1], p[2]], [p[1], p[3], p[4]], [p[2], p[4], p[5]]];
-            let geo = voxel_backward(&g.geom(i), sum_d, &sum_dd);
-            let mut flat = [0.0f64; 10];
-            flat[..3].copy_from_slice(&geo.mean);
-            flat[3..6].copy_from_slice(&geo.scale);
-            flat[6..].copy_from_slice(&geo.quat);
-            let dens = sum[..m].to_vec();
-            flat.iter()
-                .chain(&dens)
-                .all(|x| x.is_finite())
-                .then_some((flat, dens))
-        })
+                let sum_d = [sum[m], sum[m + 1], sum[m + 2]];
+                let p = &sum[m + 3..m + 9];
+                let sum_dd = [[p[0], p[1], p[2]], [p[1], p[3], p[4]], [p[2], p[4], p[5]]];
+                let geo = voxel_backward(&g.geom(i), sum_d, &sum_dd);
+                let mut flat = [0.0f64; 10];
+                flat[..3].copy_from_slice(&geo.mean);
+                flat[3..6].copy_from_slice(&geo.scale);
+                flat[6..].copy_from_slice(&geo.quat);
+                sum.truncate(m);
+                flat.iter()
+                    .chain(&sum)
+                    .all(|x| x.is_finite())
+                    .then_some((flat, sum))
+            },
+        )
         .collect();
     for (i, r) in results.into_iter().enumerate() {
         let Some((flat, dens)) = r else { continue };
