@@ -9,7 +9,7 @@
 //!   channels per call; [`screen_probe`] / [`screen_grad_norm`] give the densification statistic.
 //! * [`voxelize`]: Gaussians → `[M, nz, ny, nx]` density on any [`VoxelGrid`].
 //! * [`gaussian_math`]: the per-Gaussian and per-ray math shared by forward and backward;
-//!   [`cpu`]: the rayon tile kernels used by the NdArray and Flex backends; `cube` (feature
+//!   [`cpu`]: the rayon kernels used by the NdArray and Flex backends; `cube` (feature
 //!   `wgpu`): the CubeCL kernels of the wgpu backend.
 
 // Index loops mirror the matrix math (and the CubeCL kernels that port it).

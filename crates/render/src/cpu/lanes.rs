@@ -40,21 +40,52 @@ pub(crate) use dispatched;
 /// Lanes per vector.
 pub(crate) const LANES: usize = 8;
 
-/// One tile's upstream gradient as the backward row kernels read it: `values` is `[M][tile
-/// elements]` (every row stored lane-block wide, zeros past the edges), `finite` says whether all
-/// of it is finite (then the kernels skip the select that keeps non-finite products out of their
-/// sums, see [`Lanes::zero_outside`]).
+/// An upstream gradient as the backward row kernels read it: `values` (rows padded so a lane
+/// block starting at any pixel or voxel of a row lies inside it) and whether all of it is
+/// `finite` (then the kernels skip the select that keeps non-finite products out of their sums,
+/// see [`Lanes::zero_outside`]).
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct TileGrad<'a> {
+pub(crate) struct UpstreamGrad<'a> {
     pub(crate) values: &'a [f32],
     pub(crate) finite: bool,
 }
 
-impl<'a> TileGrad<'a> {
-    /// The tile's gradient `values`, checked for non-finite entries.
-    pub(crate) fn new(values: &'a [f32]) -> Self {
-        let finite = values.iter().all(|v| v.is_finite());
-        Self { values, finite }
+/// Counts the rows a backward kernel sums in f32 lane accumulators and says when to widen them
+/// into f64: every `every` rows (so each f32 partial sum holds a bounded number of terms), and
+/// once more at the end if rows are pending.
+pub(crate) struct RowBatches {
+    pending: usize,
+    every: usize,
+}
+
+impl RowBatches {
+    pub(crate) fn new(every: usize) -> Self {
+        Self { pending: 0, every }
+    }
+
+    /// Count one row; whether the sums are due now.
+    #[inline(always)]
+    pub(crate) fn due(&mut self) -> bool {
+        self.pending += 1;
+        let due = self.pending == self.every;
+        if due {
+            self.pending = 0;
+        }
+        due
+    }
+
+    /// Whether rows were summed since the last widening.
+    pub(crate) fn pending(&self) -> bool {
+        self.pending > 0
+    }
+}
+
+/// Add each lane block's sum (widened to f64) to `acc` and zero the blocks.
+#[inline(always)]
+pub(crate) fn drain<L: Lanes>(lanes: &mut [[f32; LANES]], acc: &mut [f64]) {
+    for (o, l) in acc.iter_mut().zip(lanes.iter_mut()) {
+        *o += L::load(l).sum();
+        *l = [0.0; LANES];
     }
 }
 

@@ -262,8 +262,9 @@ fn turned_detectors_integrate_along_their_own_rays() {
 }
 
 #[test]
-fn tiled_forward_matches_untiled_reference() {
-    // Many Gaussians spanning tile borders, two channels, two views, random screen offsets.
+fn forward_matches_the_per_pixel_reference() {
+    // Many Gaussians spanning band borders and several lane blocks, two channels, two views,
+    // random screen offsets; a detector whose width is not a multiple of the lane block.
     let p = Params::random(60, 2, 20.0, (0.8, 4.0), 7);
     let k = 60;
     let cams = [cone(0.2, 40, 37, 0.9), cone(1.9, 40, 37, 0.9)];

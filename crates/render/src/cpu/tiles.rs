@@ -1,10 +1,9 @@
-//! Tile binning: which Gaussians touch which tile, and back.
+//! Tile binning: which Gaussians touch which tile.
 //!
-//! Each Gaussian covers a box of tiles (`lo..hi` per axis, 2D grids use one z tile). Binning is a
-//! counting sort: `tile_start` / `tile_gaussians` list the Gaussians of every tile (the forward
-//! pass walks a tile's list and owns the tile's pixels, so it needs no atomics), and
-//! `gaussian_start` / `gaussian_isects` list every Gaussian's slots in that array (the backward
-//! pass writes per-slot partial sums tile by tile, then gathers them per Gaussian).
+//! Each Gaussian covers a box of tiles (`lo..hi` per axis; the forward passes use one axis: bands
+//! of detector rows, slabs of z-slices). Binning is a counting sort: `tile_start` /
+//! `tile_gaussians` list the Gaussians of every tile in index order (a forward pass walks a
+//! tile's list and owns the tile's pixels or voxels, so it needs no atomics).
 
 use rayon::prelude::*;
 
@@ -35,34 +34,21 @@ pub struct TileBox {
     pub hi: [usize; 3],
 }
 
-/// The tile ↔ Gaussian incidence of one pass.
+/// The Gaussians of every tile, for one pass.
 #[derive(Debug, Default)]
 pub struct Bins {
     /// Tile `t`'s Gaussians are `tile_gaussians[tile_start[t]..tile_start[t + 1]]`.
     pub tile_start: Vec<usize>,
     pub tile_gaussians: Vec<u32>,
-    /// Gaussian `g`'s slots in `tile_gaussians` are `gaussian_isects[gaussian_start[g]..gaussian_start[g + 1]]`
-    /// (both empty when built by [`Bins::tile_lists`]).
-    pub gaussian_start: Vec<usize>,
-    pub gaussian_isects: Vec<usize>,
 }
 
 impl Bins {
     /// Bin Gaussians into a `tiles = [tx, ty, tz]` grid; tile index `(z·ty + y)·tx + x`.
-    pub fn new(tiles: [usize; 3], boxes: &[Option<TileBox>]) -> Self {
-        Self::build(tiles, boxes, true)
-    }
-
-    /// [`Bins::new`] without the Gaussian → slot side (`gaussian_start` and `gaussian_isects`
-    /// left empty): all a forward pass reads, at about half the serial cost.
-    pub fn tile_lists(tiles: [usize; 3], boxes: &[Option<TileBox>]) -> Self {
-        Self::build(tiles, boxes, false)
-    }
-
+    ///
     /// A counting sort in two parallel passes over chunks of Gaussians (count per tile, then
     /// write): chunk `c`'s entries of a tile follow those of chunks `< c`, so every tile lists
     /// its Gaussians in increasing order, as one serial pass would.
-    fn build(tiles: [usize; 3], boxes: &[Option<TileBox>], gaussian_side: bool) -> Self {
+    pub fn new(tiles: [usize; 3], boxes: &[Option<TileBox>]) -> Self {
         let n_tiles = tiles[0] * tiles[1] * tiles[2];
         let chunk = boxes
             .len()
@@ -80,7 +66,6 @@ impl Bins {
                 n
             })
             .collect();
-        let chunk_isects: Vec<usize> = cursors.iter().map(|n| n.iter().sum()).collect();
         let mut tile_start = vec![0usize; n_tiles + 1];
         for t in 0..n_tiles {
             let mut at = tile_start[t];
@@ -89,62 +74,26 @@ impl Bins {
             }
             tile_start[t + 1] = at;
         }
-        let total = tile_start[n_tiles];
-        let mut tile_gaussians = vec![0u32; total];
-        let (mut gaussian_start, mut gaussian_isects) = if gaussian_side {
-            (vec![0usize; boxes.len() + 1], vec![0usize; total])
-        } else {
-            (Vec::new(), Vec::new())
-        };
-        // Every chunk's slice of the Gaussian side (its Gaussians' slots are contiguous there).
-        let mut starts: Vec<&mut [usize]> = Vec::with_capacity(chunks.len());
-        let mut isects: Vec<(usize, &mut [usize])> = Vec::with_capacity(chunks.len());
-        if gaussian_side {
-            starts.extend(gaussian_start[1..].chunks_mut(chunk));
-            let (mut rest, mut offset) = (&mut gaussian_isects[..], 0);
-            for &n in &chunk_isects {
-                let (head, tail) = rest.split_at_mut(n);
-                isects.push((offset, head));
-                (rest, offset) = (tail, offset + n);
-            }
-        }
-        let mut starts = starts.into_iter();
-        let mut isects = isects.into_iter();
-        let jobs: Vec<_> = cursors
-            .iter_mut()
-            .enumerate()
-            .map(|(c, cur)| (c, cur, starts.next(), isects.next()))
-            .collect();
+        let mut tile_gaussians = vec![0u32; tile_start[n_tiles]];
         let out = SlotWriter(tile_gaussians.as_mut_ptr());
-        jobs.into_par_iter()
-            .for_each(|(c, cur, mut start, mut isect)| {
-                let first = c * chunk;
-                let mut written = 0;
-                for (j, b) in chunks[c].iter().enumerate() {
-                    if let Some(b) = b {
-                        each_tile(tiles, b, |t| {
-                            let slot = cur[t];
-                            cur[t] += 1;
-                            // SAFETY: `slot < total`, and the cursors hand out every slot exactly
-                            // once over all chunks (disjoint ranges per (tile, chunk)), so no two
-                            // writes alias.
-                            unsafe { out.write(slot, (first + j) as u32) };
-                            if let Some((_, isect)) = isect.as_mut() {
-                                isect[written] = slot;
-                            }
-                            written += 1;
-                        });
-                    }
-                    if let (Some(start), Some((offset, _))) = (start.as_mut(), isect.as_ref()) {
-                        start[j] = offset + written;
-                    }
+        cursors.par_iter_mut().enumerate().for_each(|(c, cur)| {
+            let first = c * chunk;
+            for (j, b) in chunks[c].iter().enumerate() {
+                if let Some(b) = b {
+                    each_tile(tiles, b, |t| {
+                        let slot = cur[t];
+                        cur[t] += 1;
+                        // SAFETY: `slot < total`, and the cursors hand out every slot exactly
+                        // once over all chunks (disjoint ranges per (tile, chunk)), so no two
+                        // writes alias.
+                        unsafe { out.write(slot, (first + j) as u32) };
+                    });
                 }
-            });
+            }
+        });
         Self {
             tile_start,
             tile_gaussians,
-            gaussian_start,
-            gaussian_isects,
         }
     }
 
@@ -152,21 +101,9 @@ impl Bins {
         self.tile_start.len() - 1
     }
 
-    /// Total number of (tile, Gaussian) pairs.
-    pub fn isects(&self) -> usize {
-        self.tile_gaussians.len()
-    }
-
-    /// Split a per-slot buffer (`stride` values per slot) into one mutable slice per tile.
-    pub fn split_per_tile<'a, T>(&self, mut buf: &'a mut [T], stride: usize) -> Vec<&'a mut [T]> {
-        let mut out = Vec::with_capacity(self.tiles());
-        for t in 0..self.tiles() {
-            let n = (self.tile_start[t + 1] - self.tile_start[t]) * stride;
-            let (head, tail) = buf.split_at_mut(n);
-            out.push(head);
-            buf = tail;
-        }
-        out
+    /// Tile `t`'s Gaussians, in index order.
+    pub fn of(&self, t: usize) -> &[u32] {
+        &self.tile_gaussians[self.tile_start[t]..self.tile_start[t + 1]]
     }
 }
 
@@ -207,7 +144,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn binning_round_trips() {
+    fn binning_lists_each_tiles_gaussians() {
         let boxes = vec![
             Some(TileBox {
                 lo: [0, 0, 0],
@@ -220,27 +157,16 @@ mod tests {
             }),
         ];
         let bins = Bins::new([3, 2, 1], &boxes);
-        assert_eq!(bins.isects(), 2 + 4);
+        assert_eq!(bins.tile_gaussians.len(), 2 + 4);
         // Tile 1 (x=1, y=0) holds Gaussians 0 and 2.
-        assert_eq!(
-            &bins.tile_gaussians[bins.tile_start[1]..bins.tile_start[2]],
-            &[0, 2]
-        );
-        // Every Gaussian's slots point back at it.
-        for g in 0..3 {
-            for &slot in &bins.gaussian_isects[bins.gaussian_start[g]..bins.gaussian_start[g + 1]] {
-                assert_eq!(bins.tile_gaussians[slot] as usize, g);
-            }
-        }
-        assert_eq!(bins.gaussian_start, vec![0, 2, 2, 6]);
-        let lists = Bins::tile_lists([3, 2, 1], &boxes);
-        assert_eq!(lists.tile_start, bins.tile_start);
-        assert_eq!(lists.tile_gaussians, bins.tile_gaussians);
-        assert!(lists.gaussian_start.is_empty() && lists.gaussian_isects.is_empty());
+        assert_eq!(bins.of(1), &[0, 2]);
+        assert_eq!(bins.of(0), &[0]);
+        assert_eq!(bins.of(3), &[] as &[u32]);
+        assert_eq!(bins.of(5), &[2]);
     }
 
     /// Many chunks: the parallel sort equals a serial counting sort (Gaussian order in every
-    /// tile, slots pointing back).
+    /// tile).
     #[test]
     fn parallel_binning_matches_a_serial_sort() {
         let tiles = [5, 4, 3];
@@ -269,29 +195,10 @@ mod tests {
             }
         }
         let bins = Bins::new(tiles, &boxes);
+        assert_eq!(bins.tiles(), n_tiles);
         for (t, list) in lists.iter().enumerate() {
-            assert_eq!(
-                &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]],
-                &list[..]
-            );
+            assert_eq!(bins.of(t), &list[..]);
         }
-        assert_eq!(bins.gaussian_start.len(), k + 1);
-        let mut seen = vec![false; bins.isects()];
-        for g in 0..k {
-            let slots = &bins.gaussian_isects[bins.gaussian_start[g]..bins.gaussian_start[g + 1]];
-            let n = boxes[g].map_or(0, |b| (0..3).map(|a| b.hi[a] - b.lo[a]).product::<usize>());
-            assert_eq!(slots.len(), n);
-            for &slot in slots {
-                assert_eq!(bins.tile_gaussians[slot] as usize, g);
-                assert!(!seen[slot]);
-                seen[slot] = true;
-            }
-        }
-        assert!(seen.iter().all(|&s| s));
-        assert_eq!(
-            Bins::tile_lists(tiles, &boxes).tile_gaussians,
-            bins.tile_gaussians
-        );
     }
 
     #[test]

@@ -21,7 +21,7 @@ use rayon::prelude::*;
 use super::GaussianSlices;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::Avx2;
-use super::lanes::{LANES, Lanes, Portable, TileGrad, dispatched, has_avx2};
+use super::lanes::{LANES, Lanes, Portable, RowBatches, UpstreamGrad, dispatched, drain, has_avx2};
 use super::tiles::{Bins, TileBox, tile_span};
 use crate::gaussian_math::{self as gm, voxel_backward};
 use crate::options::{VoxelGrid, VoxelizeOptions};
@@ -271,10 +271,7 @@ fn flush<L: Lanes>(
         acc[0] += sw;
         dens[0] as f64
     } else {
-        for (o, l) in acc.iter_mut().zip(lanes.iter_mut()) {
-            *o += L::load(l).sum();
-            *l = [0.0; LANES];
-        }
+        drain::<L>(lanes, acc);
         1.0
     };
     let moments = [x, y, zs, xx, xy, xz, yy, yz, zz];
@@ -296,17 +293,17 @@ dispatched! {
         s: &VoxSplat,
         pass: Pass<'_>,
         x0: usize,
-        grad: TileGrad<'_>,
+        grad: UpstreamGrad<'_>,
         dens: &[f32],
         lanes: &mut [[f32; LANES]],
         acc: &mut [f64],
     ) {
-        let TileGrad { values: gv, finite } = grad;
+        let UpstreamGrad { values: gv, finite } = grad;
         let single = dens.len() == 1;
         let pad = pass.pad;
         let vb = VoxBlock::<L>::new(s, pass, x0);
         let mut sums = [L::zero(); 6];
-        let mut rows = 0;
+        let mut batches = RowBatches::new(FLUSH_ROWS);
         vb.rows(s, pass, s.lo[2]..s.hi[2], |y, z, dy, dz, g| {
             let w = if single {
                 g.mul(L::load(block(gv, pad.at(0, x0, y, z)))).zero_outside(g, finite)
@@ -330,13 +327,11 @@ dispatched! {
             *ayy = wy.mul_add(vy, *ayy);
             *ayz = wy.mul_add(vz, *ayz);
             *azz = wz.mul_add(vz, *azz);
-            rows += 1;
-            if rows == FLUSH_ROWS {
+            if batches.due() {
                 flush(vb.dx, &mut sums, lanes, dens, acc);
-                rows = 0;
             }
         });
-        if rows > 0 {
+        if batches.pending() {
             flush(vb.dx, &mut sums, lanes, dens, acc);
         }
     }
@@ -366,7 +361,7 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
             })
         })
         .collect();
-    let bins = Bins::tile_lists([1, 1, slabs], &boxes);
+    let bins = Bins::new([1, 1, slabs], &boxes);
     let buffers: Vec<Vec<f32>> = (0..slabs)
         .into_par_iter()
         .map(|t| {
@@ -378,7 +373,7 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
                 cut2,
             };
             let mut buf = vec![0.0f32; m * pad.channel_len()];
-            for &gi in &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]] {
+            for &gi in bins.of(t) {
                 let gi = gi as usize;
                 let Some(s) = &splats[gi] else { continue };
                 let dens = &g.densities[m * gi..m * gi + m];
@@ -444,7 +439,7 @@ pub fn voxelize_backward(
         pad: &pad,
         cut2,
     };
-    let upstream = TileGrad {
+    let upstream = UpstreamGrad {
         values: &padded,
         finite: grad.par_iter().all(|v| v.is_finite()),
     };

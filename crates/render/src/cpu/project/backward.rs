@@ -1,5 +1,5 @@
-//! The backward pass: per-(tile, Gaussian) partial sums written to disjoint slices, then gathered
-//! and chained per Gaussian.
+//! The backward pass: one Gaussian per task sums the upstream gradient over its own pixels and
+//! chains the sums to its parameters, so nothing is stored per (tile, Gaussian) or gathered.
 
 use super::*;
 
@@ -32,78 +32,31 @@ pub(super) fn backward(
         let det = Detector::new(cam);
         let near = opts.near_fraction * cam.sdd;
         let gview = &grad[v * m * plane..(v + 1) * m * plane];
-        let (prep, boxes) = prepare(g, screen, prepared, v, cam, opts);
-        let bins = Bins::new([det.tiles_x, det.tiles_y, 1], &boxes);
-        // Per-slot partial sums. Affine: [S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy,
-        // Σ wG dy²] with S_c = Σ g_c G and w = Σ_c ρ_c g_c. Exact: [S_c.., g_centre(3), g_prec(6)].
+        let prep = prepare(g, screen, prepared, v, cam, opts);
+        // The view's upstream gradient with padded rows (see `ViewGrad`).
+        let stride_px = det.cols + HALF;
+        let mut padded = vec![0.0f32; m * det.rows * stride_px];
+        padded
+            .par_chunks_mut(stride_px)
+            .zip(gview.par_chunks(det.cols))
+            .for_each(|(dst, src)| dst[..det.cols].copy_from_slice(src));
+        let upstream = ViewGrad {
+            values: UpstreamGrad {
+                values: &padded,
+                finite: gview.par_iter().all(|v| v.is_finite()),
+            },
+            rows: det.rows,
+            stride: stride_px,
+        };
+        // Per Gaussian, its sums over its own pixels. Affine: [S_0..S_{M-1}, Σ wG dx, Σ wG dy,
+        // Σ wG dx², Σ wG dxdy, Σ wG dy²] with S_c = Σ g_c G and w = Σ_c ρ_c g_c. Exact:
+        // [S_c.., g_centre(3), g_prec(6)].
         let stride = match prep {
             Prepared::Affine(..) => m + 5,
             Prepared::Exact(..) => m + 9,
         };
-        let mut slots = vec![0.0f64; bins.isects() * stride];
-        let per_tile = bins.split_per_tile(&mut slots, stride);
-        per_tile.into_par_iter().enumerate().for_each(|(t, out)| {
-            let r = det.tile_rect(t);
-            let tw = r.1 - r.0;
-            let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
-            // The tile's upstream gradient, gathered once: [M][pixels].
-            let n = TILE_PIXELS;
-            let mut gt = vec![0.0f32; m * n];
-            for c in 0..m {
-                for y in r.2..r.3 {
-                    let src = c * plane + y * det.cols + r.0;
-                    let o = c * n + (y - r.2) * TILE;
-                    gt[o..o + tw].copy_from_slice(&gview[src..src + tw]);
-                }
-            }
-            let tile_grad = TileGrad::new(&gt);
-            let mut rows = [[0.0f32; HALF]; TILE];
-            // Gather the tile's affine splats first (see the forward pass).
-            let local: Vec<Option<PixelSplat>> = match &prep {
-                Prepared::Affine(splats) => list.iter().map(|&gi| splats[gi as usize]).collect(),
-                Prepared::Exact(_) => Vec::new(),
-            };
-            for (j, &gi) in list.iter().enumerate() {
-                let gi = gi as usize;
-                let acc = &mut out[j * stride..(j + 1) * stride];
-                let dens = &g.densities[m * gi..m * gi + m];
-                match &prep {
-                    Prepared::Affine(..) => {
-                        let Some(s) = &local[j] else { continue };
-                        splat_backward(s, r, cut2 as f32, tile_grad, dens, &mut rows, acc);
-                    }
-                    Prepared::Exact(splats) => {
-                        let Some((s, px)) = &splats[gi] else { continue };
-                        exact_pixels(px, r, |p, x, y| {
-                            let (o, d, len) = camera_ray(cam, x as f64, y as f64);
-                            let Some(rt) = ray_terms(&s.ray_gaussian, o, d) else {
-                                return;
-                            };
-                            if rt.q > cut2 {
-                                return;
-                            }
-                            let mut w = 0.0f64;
-                            for c in 0..m {
-                                w += dens[c] as f64 * gt[c * n + p] as f64;
-                            }
-                            let (val, g_c, g_p) =
-                                line_integral_backward(&s.ray_gaussian, o, d, len, w);
-                            for c in 0..m {
-                                acc[c] += gt[c * n + p] as f64 * val;
-                            }
-                            for q in 0..3 {
-                                acc[m + q] += g_c[q];
-                            }
-                            let gp = sym_pack(&g_p);
-                            for q in 0..6 {
-                                acc[m + 3 + q] += gp[q];
-                            }
-                        });
-                    }
-                }
-            }
-        });
-        // Gather per Gaussian and chain to its parameters, written straight into the outputs.
+        let gv = upstream.values.values;
+        // Sum per Gaussian and chain to its parameters, written straight into the outputs.
         let screen_view = &mut total.screen[2 * v * k..2 * (v + 1) * k];
         total
             .means
@@ -115,31 +68,36 @@ pub(super) fn backward(
             .enumerate()
             .with_min_len(64)
             .for_each_init(
-                || vec![0.0f64; stride],
-                |sum, (i, ((((out_mean, out_scale), out_rot), out_dens), out_screen))| {
-                    // A Gaussian's slots lie in different tiles' runs (cache misses the f64
-                    // chain below would otherwise wait for): fetch those of a later one now.
-                    if let Some(&[from, to, ..]) = bins.gaussian_start.get(i + PREFETCH_AHEAD..) {
-                        for &slot in &bins.gaussian_isects[from..to] {
-                            prefetch(&slots[slot * stride]);
-                        }
-                    }
-                    let isects =
-                        &bins.gaussian_isects[bins.gaussian_start[i]..bins.gaussian_start[i + 1]];
-                    if isects.is_empty() {
-                        return;
-                    }
+                || (vec![0.0f64; stride], vec![[0.0f32; HALF]; m]),
+                |(sum, lanes), (i, ((((out_mean, out_scale), out_rot), out_dens), out_screen))| {
                     sum.fill(0.0);
-                    for &slot in isects {
-                        for (a, b) in sum
-                            .iter_mut()
-                            .zip(&slots[slot * stride..(slot + 1) * stride])
-                        {
-                            *a += b;
+                    let dens = &g.densities[m * i..m * i + m];
+                    match &prep {
+                        Prepared::Affine(splats) => {
+                            let Some(s) = &splats[i] else { return };
+                            splat_backward(s, cut2 as f32, upstream, dens, lanes, sum);
+                        }
+                        Prepared::Exact(splats) => {
+                            let Some((s, px)) = &splats[i] else { return };
+                            exact_rays(cam, s, px, px[2]..px[3], cut2, |x, y, o, d, len, _| {
+                                let gc = |c: usize| gv[upstream.at(c, x, y)] as f64;
+                                let w: f64 = (0..m).map(|c| dens[c] as f64 * gc(c)).sum();
+                                let (val, g_c, g_p) =
+                                    line_integral_backward(&s.ray_gaussian, o, d, len, w);
+                                for c in 0..m {
+                                    sum[c] += gc(c) * val;
+                                }
+                                for q in 0..3 {
+                                    sum[m + q] += g_c[q];
+                                }
+                                let gp = sym_pack(&g_p);
+                                for q in 0..6 {
+                                    sum[m + 3 + q] += gp[q];
+                                }
+                            });
                         }
                     }
                     let geom: GaussianGeom = g.geom(i);
-                    let dens = &g.densities[m * i..m * i + m];
                     let off = screen_offset(screen, k, v, i);
                     // ∂L/∂ρ_c = dens_scale · S_c.
                     let (geo, dens_scale, g_screen) = match &prep {
@@ -207,20 +165,4 @@ pub(super) fn backward(
             );
     }
     total
-}
-
-/// How many Gaussians ahead the backward's per-Gaussian gather prefetches its slots.
-pub(super) const PREFETCH_AHEAD: usize = 4;
-
-/// Hint the CPU to load the cache line holding `v` (no effect on results; no-op off x86-64).
-#[inline(always)]
-pub(super) fn prefetch<T>(v: &T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch never faults nor changes memory, and `v` is a valid reference.
-    unsafe {
-        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-        _mm_prefetch::<_MM_HINT_T0>((v as *const T).cast());
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = v;
 }

@@ -1,4 +1,5 @@
-//! The forward pass: one tile per task, every Gaussian binned to it summed in.
+//! The forward pass: one band of detector rows per task, every Gaussian binned to it summed in
+//! (in index order, so every pixel's sum has the same order however the detector is split).
 
 use super::*;
 
@@ -21,19 +22,32 @@ pub(super) fn forward(
     let cut2 = opts.cutoff * opts.cutoff;
     for (v, cam) in cams.iter().enumerate() {
         let det = Detector::new(cam);
-        let (prep, boxes) = prepare(g, screen, prepared, v, cam, opts);
-        let bins = Bins::tile_lists([det.tiles_x, det.tiles_y, 1], &boxes);
-        let tiles: Vec<Vec<f32>> = (0..bins.tiles())
+        let prep = prepare(g, screen, prepared, v, cam, opts);
+        let n_bands = det.rows.div_ceil(BAND);
+        let band = |b: usize| Band {
+            y0: b * BAND,
+            y1: ((b + 1) * BAND).min(det.rows),
+            stride: det.cols + HALF,
+        };
+        let boxes: Vec<Option<TileBox>> = (0..g.len())
+            .map(|i| {
+                prep.rows(i).map(|r| TileBox {
+                    lo: [0, r.start / BAND, 0],
+                    hi: [1, (r.end - 1) / BAND + 1, 1],
+                })
+            })
+            .collect();
+        let bins = Bins::new([1, n_bands, 1], &boxes);
+        let bands: Vec<Vec<f32>> = (0..n_bands)
             .into_par_iter()
-            .map(|t| {
-                let r = det.tile_rect(t);
-                let n = TILE_PIXELS;
-                let mut buf = vec![0.0f32; m * n];
-                let list = &bins.tile_gaussians[bins.tile_start[t]..bins.tile_start[t + 1]];
+            .map(|b| {
+                let band = band(b);
+                let mut buf = vec![0.0f32; m * band.len()];
+                let list = bins.of(b);
                 match &prep {
                     Prepared::Affine(splats) => {
                         let mut w = vec![0.0f32; m];
-                        // Gather the tile's splats first: the cache misses of this tight loop
+                        // Gather the band's splats first: the cache misses of this tight loop
                         // overlap, unlike misses taken inside the pixel loops.
                         let local: Vec<(usize, PixelSplat)> = list
                             .iter()
@@ -44,26 +58,20 @@ pub(super) fn forward(
                             for c in 0..m {
                                 w[c] = dens[c] * s.mu;
                             }
-                            splat_forward(s, r, cut2 as f32, &w, &mut buf);
+                            splat_forward(s, band, cut2 as f32, &w, &mut buf);
                         }
                     }
                     Prepared::Exact(splats) => {
-                        let mut acc = vec![0.0f64; m * n];
+                        let mut acc = vec![0.0f64; m * band.len()];
                         for &gi in list {
                             let gi = gi as usize;
                             let Some((s, px)) = &splats[gi] else { continue };
                             let dens = &g.densities[m * gi..m * gi + m];
-                            exact_pixels(px, r, |p, x, y| {
-                                let (o, d, len) = camera_ray(cam, x as f64, y as f64);
-                                let Some(rt) = ray_terms(&s.ray_gaussian, o, d) else {
-                                    return;
-                                };
-                                if rt.q > cut2 {
-                                    return;
-                                }
-                                let val = gm::line_integral_terms(&rt, len);
+                            let rows = px[2].max(band.y0)..px[3].min(band.y1);
+                            exact_rays(cam, s, px, rows, cut2, |x, y, _, _, len, rt| {
+                                let val = gm::line_integral_terms(rt, len);
                                 for c in 0..m {
-                                    acc[c * n + p] += dens[c] as f64 * val;
+                                    acc[band.at(c, x, y)] += dens[c] as f64 * val;
                                 }
                             });
                         }
@@ -76,16 +84,13 @@ pub(super) fn forward(
             })
             .collect();
         let view_out = &mut out[v * m * plane..(v + 1) * m * plane];
-        for (t, buf) in tiles.iter().enumerate() {
-            let r = det.tile_rect(t);
-            let tw = r.1 - r.0;
-            let n = TILE_PIXELS;
+        for (b, buf) in bands.iter().enumerate() {
+            let band = band(b);
             for c in 0..m {
-                for y in r.2..r.3 {
-                    let o = c * n + (y - r.2) * TILE;
-                    let src = &buf[o..o + tw];
-                    let dst = c * plane + y * det.cols + r.0;
-                    view_out[dst..dst + tw].copy_from_slice(src);
+                for y in band.y0..band.y1 {
+                    let src = band.at(c, 0, y);
+                    let dst = c * plane + y * det.cols;
+                    view_out[dst..dst + det.cols].copy_from_slice(&buf[src..src + det.cols]);
                 }
             }
         }

@@ -1,16 +1,19 @@
 //! Projection of Gaussians onto the detector of each view: forward and backward.
 //!
-//! Per view, every Gaussian is prepared once in f64 ([`gm::splat`] or [`gm::exact_splat`]) and
-//! binned into 16×16 tiles; the prepared geometry is shared by all M density channels. A pixel
-//! receives a Gaussian iff it lies within the Mahalanobis cut-off (affine: of the 2D footprint;
-//! exact: of the ray's closest approach) — a relative criterion, unlike upstream's absolute
-//! `ρμG < 1e-5` skip, so densities of 1e-8 still render.
+//! Per view, every Gaussian is prepared once in f64 ([`gm::splat`] or [`gm::exact_splat`]) into
+//! a pixel box; the prepared geometry is shared by all M density channels. A pixel receives a
+//! Gaussian iff it lies within the Mahalanobis cut-off (affine: of the 2D footprint; exact: of
+//! the ray's closest approach) — a relative criterion, unlike upstream's absolute `ρμG < 1e-5`
+//! skip, so densities of 1e-8 still render.
 //!
 //! The affine preparation (f32 pixel splats, [`project_prepare`]) can be computed once and read
 //! by both passes ([`project_forward_prepared`], [`project_backward_prepared`]); the Burn ops do
-//! so. The affine backward evaluates `G` once per (pixel, Gaussian) in 8-lane blocks
-//! ([`super::lanes`], AVX2+FMA when the CPU has it), accumulates per-(tile, Gaussian)
-//! image-space sums in registers, writes them once, and chains them per Gaussian through
+//! so. Both passes walk a Gaussian's box row by row in 8-lane blocks ([`super::lanes`],
+//! AVX2+FMA when the CPU has it) that start at the box's own first column, so a footprint no
+//! wider than a block is evaluated once per row. The forward pass bins Gaussians into bands of
+//! [`BAND`] detector rows and owns one band per task (each pixel sums its Gaussians in index
+//! order); the backward pass owns one Gaussian per task: it sums its image-space moments over its
+//! own pixels from the padded upstream gradient and chains them through
 //! [`gm::splat_backward_with`] (one f64 splat per Gaussian); the exact backward accumulates
 //! per-pixel `∂/∂(centre, Σ⁻¹)`.
 
@@ -30,7 +33,7 @@ use rayon::prelude::*;
 use super::GaussianSlices;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::Avx2;
-use super::lanes::{LANES, Lanes, Portable, TileGrad, dispatched, has_avx2};
+use super::lanes::{LANES, Lanes, Portable, RowBatches, UpstreamGrad, dispatched, drain, has_avx2};
 use super::tiles::{Bins, TileBox, tile_span};
 use crate::camera::Camera;
 use crate::gaussian_math::{
@@ -39,20 +42,8 @@ use crate::gaussian_math::{
 };
 use crate::options::{ProjectOptions, ProjectionMode};
 
-/// Detector tile edge in pixels.
-pub const TILE: usize = 16;
-
-/// `[0, 1, …, TILE − 1]` as f32: pixel offsets within a row without int→float conversions
-/// (which would keep the row loops from vectorising).
-const IOTA: [f32; TILE] = {
-    let mut a = [0.0f32; TILE];
-    let mut i = 0;
-    while i < TILE {
-        a[i] = i as f32;
-        i += 1;
-    }
-    a
-};
+/// Detector rows per forward task.
+const BAND: usize = 8;
 
 /// Gradients of a projection with respect to every input, row-major like the inputs.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -133,7 +124,7 @@ pub fn count_project_evaluations(
     let screen = vec![0.0f32; 2 * g.len() * cams.len()];
     let mut total = 0;
     for (v, cam) in cams.iter().enumerate() {
-        let (prep, _) = prepare(g, &screen, None, v, cam, opts);
+        let prep = prepare(g, &screen, None, v, cam, opts);
         total += match prep {
             Prepared::Affine(splats) => {
                 let cut2 = (opts.cutoff * opts.cutoff) as f32;

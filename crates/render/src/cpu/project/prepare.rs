@@ -1,6 +1,6 @@
 //! The per-view preparation of every Gaussian: affine pixel splats (f32, also the prepared
 //! state the Burn ops keep between forward and backward) or exact splats (f64), with their
-//! pixel and tile boxes.
+//! pixel boxes.
 
 use super::*;
 
@@ -12,7 +12,7 @@ pub(super) struct PixelSplat {
     pub(super) a: f32,
     pub(super) beta: f32,
     pub(super) gamma: f32,
-    /// Integration factor μ (length units), so a tile's pass reads one array per Gaussian.
+    /// Integration factor μ (length units), so a pass reads one array per Gaussian.
     pub(super) mu: f32,
     /// Pixel box `[x0, x1) × [y0, y1)` clamped to the detector.
     pub(super) x0: u32,
@@ -54,8 +54,8 @@ impl PixelSplat {
     }
 
     /// Inverse of [`PixelSplat::pack`], with the box clamped to `det` (so a record made for
-    /// another detector cannot index outside this one) and its tile box; `None` if culled.
-    pub(super) fn unpack(v: &[f32], det: &Detector) -> Option<(PixelSplat, TileBox)> {
+    /// another detector cannot index outside this one); `None` if culled.
+    pub(super) fn unpack(v: &[f32], det: &Detector) -> Option<PixelSplat> {
         // `as` saturates (NaN → 0), so the clamped box is always a valid index range.
         let x0 = v[6] as usize;
         let x1 = (v[7] as usize).min(det.cols);
@@ -64,7 +64,7 @@ impl PixelSplat {
         if x0 >= x1 || y0 >= y1 {
             return None;
         }
-        let s = PixelSplat {
+        Some(PixelSplat {
             mx: v[0],
             my: v[1],
             a: v[2],
@@ -75,20 +75,18 @@ impl PixelSplat {
             x1: x1 as u32,
             y0: y0 as u32,
             y1: y1 as u32,
-        };
-        let tb = TileBox {
-            lo: [x0 / TILE, y0 / TILE, 0],
-            hi: [(x1 - 1) / TILE + 1, (y1 - 1) / TILE + 1, 1],
-        };
-        Some((s, tb))
+        })
+    }
+
+    /// Its rows `[y0, y1)`.
+    pub(super) fn rows(&self) -> std::ops::Range<usize> {
+        self.y0 as usize..self.y1 as usize
     }
 }
 
 pub(super) struct Detector {
     pub(super) rows: usize,
     pub(super) cols: usize,
-    pub(super) tiles_x: usize,
-    pub(super) tiles_y: usize,
 }
 
 impl Detector {
@@ -96,34 +94,15 @@ impl Detector {
         Self {
             rows: cam.rows,
             cols: cam.cols,
-            tiles_x: cam.cols.div_ceil(TILE),
-            tiles_y: cam.rows.div_ceil(TILE),
         }
     }
 
-    pub(super) fn tile_rect(&self, t: usize) -> (usize, usize, usize, usize) {
-        let (tx, ty) = (t % self.tiles_x, t / self.tiles_x);
-        let x0 = tx * TILE;
-        let y0 = ty * TILE;
-        (
-            x0,
-            (x0 + TILE).min(self.cols),
-            y0,
-            (y0 + TILE).min(self.rows),
-        )
-    }
-
-    /// Pixel and tile boxes of a footprint `[col_min, col_max] × [row_min, row_max]`.
-    pub(super) fn boxes(&self, bb: [f64; 4]) -> Option<([usize; 4], TileBox)> {
-        let (x0, x1, tx0, tx1) = tile_span(bb[0], bb[1], self.cols, TILE)?;
-        let (y0, y1, ty0, ty1) = tile_span(bb[2], bb[3], self.rows, TILE)?;
-        Some((
-            [x0, x1, y0, y1],
-            TileBox {
-                lo: [tx0, ty0, 0],
-                hi: [tx1, ty1, 1],
-            },
-        ))
+    /// Pixel box `[x0, x1, y0, y1]` (ends exclusive) of a footprint `[col_min, col_max] ×
+    /// [row_min, row_max]`, clamped to the detector; `None` if it misses it.
+    pub(super) fn pixel_box(&self, bb: [f64; 4]) -> Option<[usize; 4]> {
+        let (x0, x1, _, _) = tile_span(bb[0], bb[1], self.cols, 1)?;
+        let (y0, y1, _, _) = tile_span(bb[2], bb[3], self.rows, 1)?;
+        Some([x0, x1, y0, y1])
     }
 }
 
@@ -139,8 +118,8 @@ pub(super) fn screen_offset(screen: &[f32], k: usize, view: usize, i: usize) -> 
     [screen[o] as f64, screen[o + 1] as f64]
 }
 
-/// The affine pixel splat (f32) and tile box of Gaussian `i` in `view`, or `None` if it is
-/// culled (non-finite density, degenerate, behind the near plane, off the detector).
+/// The affine pixel splat (f32) of Gaussian `i` in `view`, or `None` if it is culled
+/// (non-finite density, degenerate, behind the near plane, off the detector).
 pub(super) fn affine_splat(
     g: &GaussianSlices,
     screen: &[f32],
@@ -149,7 +128,7 @@ pub(super) fn affine_splat(
     cam: &Camera,
     det: &Detector,
     opts: &ProjectOptions,
-) -> Option<(PixelSplat, TileBox)> {
+) -> Option<PixelSplat> {
     g.densities_of(i)?;
     let off = screen_offset(screen, g.len(), view, i);
     let near = opts.near_fraction * cam.sdd;
@@ -160,7 +139,7 @@ pub(super) fn affine_splat(
         s.mean[1] - s.half_extent[1],
         s.mean[1] + s.half_extent[1],
     ];
-    let (px, tb) = det.boxes(bb)?;
+    let px = det.pixel_box(bb)?;
     let ps = PixelSplat {
         mx: s.mean[0] as f32,
         my: s.mean[1] as f32,
@@ -173,7 +152,7 @@ pub(super) fn affine_splat(
         y0: px[2] as u32,
         y1: px[3] as u32,
     };
-    (ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite()).then_some((ps, tb))
+    (ps.a.is_finite() && ps.beta.is_finite() && ps.gamma.is_finite()).then_some(ps)
 }
 
 /// Prepared state of every view and Gaussian, `[V, K, PREPARED_WIDTH]` (f32): the affine pixel
@@ -200,14 +179,14 @@ pub fn project_prepare(
             .with_min_len(64)
             .for_each(|(i, rec)| {
                 let s = affine_splat(g, screen, v, i, cam, &det, opts);
-                rec.copy_from_slice(&PixelSplat::pack(s.as_ref().map(|(s, _)| s)));
+                rec.copy_from_slice(&PixelSplat::pack(s.as_ref()));
             });
     }
     out
 }
 
 /// The preparation of `view`: unpacked from `prepared` (affine, see [`project_prepare`]) or
-/// computed (exact, or affine without a prepared state); with every Gaussian's tile box.
+/// computed (exact, or affine without a prepared state).
 pub(super) fn prepare(
     g: &GaussianSlices,
     screen: &[f32],
@@ -215,47 +194,43 @@ pub(super) fn prepare(
     view: usize,
     cam: &Camera,
     opts: &ProjectOptions,
-) -> (Prepared, Vec<Option<TileBox>>) {
+) -> Prepared {
     let k = g.len();
     let det = Detector::new(cam);
     match opts.mode {
-        ProjectionMode::Affine => {
-            // Split in the pool (no intermediate Vec, no serial unzip).
-            let split = |it: Option<(PixelSplat, TileBox)>| {
-                it.map_or((None, None), |(s, b)| (Some(s), Some(b)))
-            };
-            let (splats, boxes) = match prepared {
-                Some(p) => p[view * k * PREPARED_WIDTH..(view + 1) * k * PREPARED_WIDTH]
-                    .par_chunks(PREPARED_WIDTH)
-                    .with_min_len(256)
-                    .map(|rec| split(PixelSplat::unpack(rec, &det)))
-                    .unzip(),
-                None => (0..k)
-                    .into_par_iter()
-                    .with_min_len(64)
-                    .map(|i| split(affine_splat(g, screen, view, i, cam, &det, opts)))
-                    .unzip(),
-            };
-            (Prepared::Affine(splats), boxes)
-        }
-        ProjectionMode::Exact => {
-            let (splats, boxes) = (0..k)
+        ProjectionMode::Affine => Prepared::Affine(match prepared {
+            Some(p) => p[view * k * PREPARED_WIDTH..(view + 1) * k * PREPARED_WIDTH]
+                .par_chunks(PREPARED_WIDTH)
+                .with_min_len(256)
+                .map(|rec| PixelSplat::unpack(rec, &det))
+                .collect(),
+            None => (0..k)
+                .into_par_iter()
+                .with_min_len(64)
+                .map(|i| affine_splat(g, screen, view, i, cam, &det, opts))
+                .collect(),
+        }),
+        ProjectionMode::Exact => Prepared::Exact(
+            (0..k)
                 .into_par_iter()
                 .map(|i| {
-                    if g.densities_of(i).is_none() {
-                        return (None, None);
-                    }
+                    g.densities_of(i)?;
                     let off = screen_offset(screen, k, view, i);
-                    let Some(s) = exact_splat(&g.geom(i), cam, off, opts.cutoff) else {
-                        return (None, None);
-                    };
-                    match det.boxes(s.bbox) {
-                        Some((px, tb)) => (Some((s, px)), Some(tb)),
-                        None => (None, None),
-                    }
+                    let s = exact_splat(&g.geom(i), cam, off, opts.cutoff)?;
+                    let px = det.pixel_box(s.bbox)?;
+                    Some((s, px))
                 })
-                .unzip();
-            (Prepared::Exact(splats), boxes)
+                .collect(),
+        ),
+    }
+}
+
+impl Prepared {
+    /// Rows `[y0, y1)` of Gaussian `i`'s pixel box, `None` if it is culled.
+    pub(super) fn rows(&self, i: usize) -> Option<std::ops::Range<usize>> {
+        match self {
+            Prepared::Affine(s) => s[i].as_ref().map(PixelSplat::rows),
+            Prepared::Exact(s) => s[i].as_ref().map(|(_, px)| px[2]..px[3]),
         }
     }
 }

@@ -1,6 +1,6 @@
-//! The row kernels: one splat evaluated over the pixels of a tile, 8 lanes at a time
-//! ([`super::super::lanes`]), forward (accumulate into the tile) and backward (partial sums of
-//! the image-space gradients).
+//! The row kernels: one splat evaluated over the rows of its pixel box, 8 lanes at a time
+//! ([`super::super::lanes`]) in blocks that start at the box's own first column, forward
+//! (accumulate into a band of detector rows) and backward (the image-space gradient sums).
 
 use super::*;
 
@@ -26,21 +26,6 @@ pub(super) fn row_span(
     (lo < hi).then_some((lo as usize, hi as usize))
 }
 
-/// Tile-buffer elements per channel: rows are stored `TILE` wide whatever the tile's width (the
-/// columns past a detector edge stay 0), so every row loop has the fixed trip count `TILE`.
-pub(super) const TILE_PIXELS: usize = TILE * TILE;
-
-/// Pixel box `[x0, x1) × [y0, y1)` of `s` clipped to tile rect `r`, or `None` if empty.
-#[inline(always)]
-pub(super) fn clip(
-    s: &PixelSplat,
-    r: (usize, usize, usize, usize),
-) -> Option<(usize, usize, usize, usize)> {
-    let (x0, x1) = ((s.x0 as usize).max(r.0), (s.x1 as usize).min(r.1));
-    let (y0, y1) = ((s.y0 as usize).max(r.2), (s.y1 as usize).min(r.3));
-    (x0 < x1 && y0 < y1).then_some((x0, x1, y0, y1))
-}
-
 /// `γ dy²` of row `dy` (pixels from the centre), or `None` if the row misses the cut-off ellipse
 /// (`γ dy² ≥ cut²`, or NaN).
 #[inline(always)]
@@ -49,38 +34,35 @@ pub(super) fn row_gdy(s: &PixelSplat, dy: f32, cut2: f32) -> Option<f32> {
     ((cut2 - gdy).partial_cmp(&0.0) == Some(std::cmp::Ordering::Greater)).then_some(gdy)
 }
 
-/// The per-(splat, tile, column block) constants of [`SplatBlock::row`].
+/// The per-(splat, column block) constants of [`SplatBlock::row`].
 #[derive(Clone, Copy)]
 pub(super) struct SplatBlock<L> {
     /// Column offsets `x − mx` of the block's lanes (pixels).
     pub(super) dx: L,
     /// `−½ a`.
     pub(super) neg_half_a: L,
-    /// `−½ cut²` on the splat's clipped columns and `+∞` elsewhere, so one compare applies both
-    /// the cut-off and the clipping.
+    /// `−½ cut²` on the columns inside the splat's box and `+∞` elsewhere, so one compare
+    /// applies both the cut-off and the box.
     pub(super) neg_half_cut: L,
 }
 
 impl<L: Lanes> SplatBlock<L> {
-    /// Block of tile lanes `h..h + HALF` of a tile starting at column `c0`, for a splat clipped
-    /// to tile lanes `[l0, l1)`.
+    /// The block of `s` whose first lane is column `x0` (`s.x0 ≤ x0 < s.x1`).
     #[inline(always)]
-    pub(super) fn new(
-        s: &PixelSplat,
-        c0: usize,
-        h: usize,
-        (l0, l1): (usize, usize),
-        cut2: f32,
-    ) -> Self {
+    pub(super) fn at(s: &PixelSplat, x0: usize, cut2: f32) -> Self {
+        let inside = s.x1 as usize - x0;
         let cut: [f32; HALF] = std::array::from_fn(|j| {
-            if (l0..l1).contains(&(h + j)) {
+            if j < inside {
                 -0.5 * cut2
             } else {
                 f32::INFINITY
             }
         });
         Self {
-            dx: L::splat(c0 as f32 - s.mx).add(L::load(block(&IOTA, h))),
+            // Integer columns are exact in f32 (the detector limit is 2²⁰): one rounding.
+            dx: L::splat(x0 as f32)
+                .add(L::load(&LANE_OFFSETS))
+                .add(L::splat(-s.mx)),
             neg_half_a: L::splat(-0.5 * s.a),
             neg_half_cut: L::load(&cut),
         }
@@ -103,41 +85,56 @@ impl<L: Lanes> SplatBlock<L> {
 
 /// Lanes per evaluation block of the row kernels: one AVX2 register of f32.
 pub(super) const HALF: usize = LANES;
-const _: () = assert!(TILE == 2 * HALF);
 
-/// First lanes of the `HALF`-lane blocks that hold tile columns `[l0, l1)` (`l1 ≤ TILE`).
-#[inline(always)]
-pub(super) fn half_range(l0: usize, l1: usize) -> std::iter::StepBy<std::ops::Range<usize>> {
-    (l0 / HALF * HALF..l1).step_by(HALF)
+/// `[0, 1, …, HALF − 1]` as f32: the lanes' column offsets within a block.
+const LANE_OFFSETS: [f32; HALF] = {
+    let mut a = [0.0f32; HALF];
+    let mut i = 0;
+    while i < HALF {
+        a[i] = i as f32;
+        i += 1;
+    }
+    a
+};
+
+/// Rows `[y0, y1)` of the detector held by one forward task, laid out `[M][rows][stride]` with
+/// rows `HALF` pixels longer than the detector's, so a lane block starting at any column lies
+/// inside its row.
+#[derive(Clone, Copy)]
+pub(super) struct Band {
+    pub(super) y0: usize,
+    pub(super) y1: usize,
+    pub(super) stride: usize,
+}
+
+impl Band {
+    pub(super) fn len(&self) -> usize {
+        (self.y1 - self.y0) * self.stride
+    }
+
+    /// Offset of pixel `(x, y)` of channel `c`.
+    #[inline(always)]
+    pub(super) fn at(&self, c: usize, x: usize, y: usize) -> usize {
+        (c * (self.y1 - self.y0) + y - self.y0) * self.stride + x
+    }
 }
 
 dispatched! {
-    /// Forward splat of `s` into the tile buffer `buf` (`[M][tile pixels]`) of tile rect `r`
-    /// with per-channel weights `w[c] = ρ_c μ`.
-    pub(super) fn splat_forward(
-        s: &PixelSplat,
-        r: (usize, usize, usize, usize),
-        cut2: f32,
-        w: &[f32],
-        buf: &mut [f32],
-    ) {
-        let Some((x0, x1, y0, y1)) = clip(s, r) else {
-            return;
-        };
-        let lanes = (x0 - r.0, x1 - r.0);
+    /// Forward splat of `s`'s rows inside `band` into the band's buffer `buf` with per-channel
+    /// weights `w[c] = ρ_c μ`.
+    pub(super) fn splat_forward(s: &PixelSplat, band: Band, cut2: f32, w: &[f32], buf: &mut [f32]) {
+        let rows = (s.y0 as usize).max(band.y0)..(s.y1 as usize).min(band.y1);
         let finite = w.iter().all(|w| w.is_finite());
-        for h in half_range(lanes.0, lanes.1) {
-            let sb = SplatBlock::<L>::new(s, r.0, h, lanes, cut2);
-            for y in y0..y1 {
+        for x0 in (s.x0 as usize..s.x1 as usize).step_by(HALF) {
+            let sb = SplatBlock::<L>::at(s, x0, cut2);
+            for y in rows.clone() {
                 let dy = y as f32 - s.my;
                 let Some(gdy) = row_gdy(s, dy, cut2) else {
                     continue;
                 };
                 let e = sb.row(s, dy, gdy);
-                let p = (y - r.2) * TILE + h;
                 for (c, &w) in w.iter().enumerate() {
-                    let o = c * TILE_PIXELS + p;
-                    let row = block_mut(buf, o);
+                    let row = block_mut(buf, band.at(c, x0, y));
                     let add = L::splat(w).mul(e).zero_outside(e, finite);
                     L::load(row).add(add).store(row);
                 }
@@ -146,82 +143,106 @@ dispatched! {
     }
 }
 
+/// Rows of one lane block summed in f32 before the backward's moments are widened into f64 (16,
+/// the tile height that bounded them when the sums were per detector tile).
+const FLUSH_ROWS: usize = 16;
+
+/// The upstream gradient of one view as the backward reads it: `[M][rows][stride]`, every row
+/// `HALF` pixels longer than the detector's (zeros), so a lane block starting at any column lies
+/// inside its row.
+#[derive(Clone, Copy)]
+pub(super) struct ViewGrad<'a> {
+    pub(super) values: UpstreamGrad<'a>,
+    pub(super) rows: usize,
+    pub(super) stride: usize,
+}
+
+impl ViewGrad<'_> {
+    /// Offset of pixel `(x, y)` of channel `c`.
+    #[inline(always)]
+    pub(super) fn at(&self, c: usize, x: usize, y: usize) -> usize {
+        (c * self.rows + y) * self.stride + x
+    }
+}
+
+/// Widen one block's f32 row sums (`lw`, `ly`, `lyy` and the per-channel `g_c G` in `lanes`)
+/// into `acc` and zero them; the block's dx is fixed per lane, so the dx moments follow here:
+/// `Σ wG dx = Σ_col dx·(Σ_rows wG)`, and so on.
+#[inline(always)]
+fn flush<L: Lanes>(dx: L, sums: &mut [L; 3], lanes: &mut [[f32; HALF]], m: usize, acc: &mut [f64]) {
+    let [lw, ly, lyy] = *sums;
+    let [s0, wx, wxx, wy, wxy, wyy] = L::moments(dx, lw, ly, lyy);
+    if m == 1 {
+        acc[0] += s0;
+    } else {
+        drain::<L>(lanes, acc);
+    }
+    acc[m] += wx;
+    acc[m + 1] += wy;
+    acc[m + 2] += wxx;
+    acc[m + 3] += wxy;
+    acc[m + 4] += wyy;
+    *sums = [L::zero(); 3];
+}
+
 dispatched! {
-    /// Backward partial sums of splat `s` over tile rect `r` into `acc`
-    /// (`[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
-    /// [`project_backward`]) from the tile's upstream gradient `grad` (`[M][tile pixels]`).
-    /// `rows` is scratch (any contents on entry).
+    /// Backward sums of splat `s` over its pixel box into `acc` (zero on entry;
+    /// `[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
+    /// [`project_backward`]) from the view's upstream gradient `grad`; `lanes` is scratch of `M`
+    /// lane blocks, zero on entry and on return.
     ///
-    /// Per 8-lane column block, two sweeps over the tile rows with register accumulators: the
-    /// first evaluates `G` once per pixel, keeps it in `rows` and sums the moments of `w G`
-    /// (`w = Σ_c ρ_c g_c`) per column; the second sums `S_c = Σ g_c G` per channel from the kept
-    /// `G`. A column's dx is fixed, so the dx moments follow at the reduction:
-    /// `Σ wG dx = Σ_col dx·(Σ_rows wG)`, and so on.
+    /// The box is walked in lane blocks that start at its own first column (a footprint no
+    /// wider than a block is read once per row), with register accumulators of the moments of
+    /// `w G` (`w = Σ_c ρ_c g_c`) and, per channel, `g_c G`, widened every [`FLUSH_ROWS`] rows.
+    /// With one channel the sums are of `g G`, `ρ` applied at the end (`S_0` is then the zeroth
+    /// moment itself).
     pub(super) fn splat_backward(
         s: &PixelSplat,
-        r: (usize, usize, usize, usize),
         cut2: f32,
-        grad: TileGrad<'_>,
+        grad: ViewGrad<'_>,
         dens: &[f32],
-        rows: &mut [[f32; HALF]; TILE],
+        lanes: &mut [[f32; HALF]],
         acc: &mut [f64],
     ) {
-        let TileGrad { values: gt, finite } = grad;
+        let UpstreamGrad { values: gv, finite } = grad.values;
         let m = dens.len();
-        // One channel: the first sweep sums the moments of g G instead (ρ factored out and
-        // applied after the reduction), whose zeroth moment is S_0 itself: no second sweep.
         let single = m == 1;
-        acc.fill(0.0);
-        let Some((x0, x1, y0, y1)) = clip(s, r) else {
-            return;
-        };
-        let lanes = (x0 - r.0, x1 - r.0);
-        for h in half_range(lanes.0, lanes.1) {
-            let sb = SplatBlock::<L>::new(s, r.0, h, lanes, cut2);
-            let (mut lw, mut ly, mut lyy) = (L::zero(), L::zero(), L::zero());
+        let (x0, x1, y0, y1) = (s.x0 as usize, s.x1 as usize, s.y0 as usize, s.y1 as usize);
+        for bx in (x0..x1).step_by(HALF) {
+            let sb = SplatBlock::<L>::at(s, bx, cut2);
+            let mut sums = [L::zero(); 3];
+            let mut batches = RowBatches::new(FLUSH_ROWS);
             for y in y0..y1 {
-                let ty = y - r.2;
                 let dy = y as f32 - s.my;
-                let e = match row_gdy(s, dy, cut2) {
-                    Some(gdy) => sb.row(s, dy, gdy),
-                    None => L::zero(),
+                let Some(gdy) = row_gdy(s, dy, cut2) else {
+                    continue;
                 };
-                let p = ty * TILE + h;
+                let e = sb.row(s, dy, gdy);
                 let u = if single {
-                    L::load(block(gt, p))
+                    L::load(block(gv, grad.at(0, bx, y)))
                 } else {
-                    e.store(&mut rows[ty]);
                     let mut u = L::zero();
                     for (c, &rho) in dens.iter().enumerate() {
-                        u = L::splat(rho).mul_add(L::load(block(gt, c * TILE_PIXELS + p)), u);
+                        let gc = L::load(block(gv, grad.at(c, bx, y)));
+                        let sc = e.mul(gc).zero_outside(e, finite);
+                        L::load(&lanes[c]).add(sc).store(&mut lanes[c]);
+                        u = L::splat(rho).mul_add(gc, u);
                     }
                     u
                 };
                 let w = e.mul(u).zero_outside(e, finite);
                 let wy = w.mul(L::splat(dy));
-                lw = lw.add(w);
-                ly = ly.add(wy);
-                lyy = wy.mul_add(L::splat(dy), lyy);
-            }
-            let [s0, wx, wxx, wy, wxy, wyy] = L::moments(sb.dx, lw, ly, lyy);
-            if single {
-                acc[0] += s0;
-            } else {
-                for c in 0..m {
-                    let mut sc = L::zero();
-                    for y in y0..y1 {
-                        let e = L::load(&rows[y - r.2]);
-                        let g = L::load(block(gt, c * TILE_PIXELS + (y - r.2) * TILE + h));
-                        sc = sc.add(e.mul(g).zero_outside(e, finite));
-                    }
-                    acc[c] += sc.sum();
+                let [lw, ly, lyy] = &mut sums;
+                *lw = lw.add(w);
+                *ly = ly.add(wy);
+                *lyy = wy.mul_add(L::splat(dy), *lyy);
+                if batches.due() {
+                    flush(sb.dx, &mut sums, lanes, m, acc);
                 }
             }
-            acc[m] += wx;
-            acc[m + 1] += wy;
-            acc[m + 2] += wxx;
-            acc[m + 3] += wxy;
-            acc[m + 4] += wyy;
+            if batches.pending() {
+                flush(sb.dx, &mut sums, lanes, m, acc);
+            }
         }
         if single {
             let rho = dens[0] as f64;
@@ -242,18 +263,27 @@ pub(super) fn block_mut(v: &mut [f32], o: usize) -> &mut [f32; HALF] {
     (&mut v[o..o + HALF]).try_into().expect("HALF-wide block")
 }
 
-/// Visit the pixels of an exact splat inside tile rect `r`: `f(local_index, col, row)`.
+/// Visit the pixels of exact splat `s` in its box `px` with rows in `rows` whose ray passes
+/// within the cut-off (`q ≤ cut²`): `f(x, y, origin, direction, length, terms)`.
 #[inline(always)]
-pub(super) fn exact_pixels(
+pub(super) fn exact_rays(
+    cam: &Camera,
+    s: &ExactSplat,
     px: &[usize; 4],
-    r: (usize, usize, usize, usize),
-    mut f: impl FnMut(usize, usize, usize),
+    rows: std::ops::Range<usize>,
+    cut2: f64,
+    mut f: impl FnMut(usize, usize, [f64; 3], [f64; 3], f64, &gm::RayTerms),
 ) {
-    let (x0, x1) = (px[0].max(r.0), px[1].min(r.1));
-    let (y0, y1) = (px[2].max(r.2), px[3].min(r.3));
-    for y in y0..y1 {
-        for x in x0..x1 {
-            f((y - r.2) * TILE + x - r.0, x, y);
+    for y in rows {
+        for x in px[0]..px[1] {
+            let (o, d, len) = camera_ray(cam, x as f64, y as f64);
+            let Some(rt) = ray_terms(&s.ray_gaussian, o, d) else {
+                continue;
+            };
+            // Not `q ≤ cut²`: a NaN q is kept, as the per-ray reference keeps it.
+            if rt.q.partial_cmp(&cut2) != Some(std::cmp::Ordering::Greater) {
+                f(x, y, o, d, len, &rt);
+            }
         }
     }
 }
