@@ -27,15 +27,15 @@ use prism_domain::memory::{Footprint, bytes};
 use prism_domain::scene::Scene;
 
 /// Bytes per Gaussian at a training iteration's peak, plus 16 per density column: the
-/// parameters with gradients and two Adam moments, the render's per-Gaussian preparation, tile
-/// lists and the autodiff graph's saved tensors. Measured: the slope of peak resident size
-/// against the Gaussian count on `prism bench scaling`'s 128³ scene (25 views, 128², 3
-/// channels; 10 000 → 500 000 Gaussians): R²-Gaussian 1.0 kB per Gaussian with its three
-/// channels (800 bytes and the pages kept per further channel, [`RETAINED_PER_CHANNEL`]), 4D-SG
-/// 0.82 kB between 300 000 and 500 000 with its 3 density columns. It was 1 980, measured on one
-/// channel at 64³ / 96² before the render's per-Gaussian buffers shrank; that read R²-Gaussian
-/// 122 % high at 500 000 Gaussians.
-pub const GAUSSIAN_BYTES: u64 = 800;
+/// parameters with gradients and two Adam moments, the render's per-Gaussian preparation, band
+/// and slab lists and the autodiff graph's saved tensors. Measured: the slope of peak resident
+/// size against the Gaussian count on `prism bench scaling`'s 128³ scene (25 views, 128², 3
+/// channels; 100 000 → 500 000 Gaussians): R²-Gaussian 0.97 kB per Gaussian with its three
+/// channels (530 bytes and the pages kept per further channel, [`RETAINED_PER_CHANNEL`], beside
+/// the finished channels' checkpoint state), 4D-SG 0.53 kB with its 3 density columns. It was
+/// 800 (1.0 and 0.82 kB measured) while the render's backward passes kept a partial sum per
+/// (tile, Gaussian); 1 980 before that, measured on one channel at 64³ / 96².
+pub const GAUSSIAN_BYTES: u64 = 530;
 
 /// What a Gaussian method's training holds whatever its Gaussian count and grid: the autodiff
 /// graph's and the render's fixed buffers, per-thread scratch, the allocator's retained arenas.
