@@ -8,6 +8,7 @@
 //! shared writes anywhere.
 
 mod lanes;
+mod padded;
 mod project;
 mod tiles;
 mod voxelize;
@@ -19,7 +20,8 @@ pub use project::{
 pub use tiles::{Bins, TileBox, tile_span};
 pub use voxelize::{VoxelizeGrads, voxelize_backward, voxelize_forward};
 
-use crate::gaussian_math::GaussianGeom;
+use crate::gaussian_math::{GaussianGeom, GeomGrad};
+use rayon::prelude::*;
 
 pub use prism_kernel::simd::{Fused, MulAdd, Separate};
 
@@ -98,6 +100,65 @@ impl GaussianSlices<'_> {
         let d = &self.densities[self.channels * i..self.channels * (i + 1)];
         d.iter().all(|v| v.is_finite()).then_some(d)
     }
+}
+
+/// One Gaussian's rows of the gradient buffers a backward pass writes: mean (3), scale (3),
+/// rotation (4), densities (M).
+pub(crate) struct GradRow<'a> {
+    mean: &'a mut [f32],
+    scale: &'a mut [f32],
+    rotation: &'a mut [f32],
+    densities: &'a mut [f32],
+}
+
+impl GradRow<'_> {
+    /// Add `geo` and the density gradients `scale · dens[c]` (f64, rounded to f32), unless any of
+    /// them is not finite (then the row is left as it is); whether they were added.
+    pub(crate) fn add(&mut self, geo: &GeomGrad, scale: f64, dens: &[f64]) -> bool {
+        let finite = geo
+            .mean
+            .iter()
+            .chain(&geo.scale)
+            .chain(&geo.quat)
+            .all(|x| x.is_finite())
+            && dens.iter().all(|x| (scale * x).is_finite());
+        if !finite {
+            return false;
+        }
+        for q in 0..3 {
+            self.mean[q] += geo.mean[q] as f32;
+            self.scale[q] += geo.scale[q] as f32;
+        }
+        for q in 0..4 {
+            self.rotation[q] += geo.quat[q] as f32;
+        }
+        for (o, d) in self.densities.iter_mut().zip(dens) {
+            *o += (scale * d) as f32;
+        }
+        true
+    }
+}
+
+/// The per-Gaussian rows of a backward pass's gradient buffers (`[K, 3]`, `[K, 3]`, `[K, 4]`,
+/// `[K, m]`), for one task per Gaussian.
+pub(crate) fn grad_rows<'a>(
+    means: &'a mut [f32],
+    scales: &'a mut [f32],
+    rotations: &'a mut [f32],
+    densities: &'a mut [f32],
+    m: usize,
+) -> impl IndexedParallelIterator<Item = GradRow<'a>> {
+    means
+        .par_chunks_mut(3)
+        .zip(scales.par_chunks_mut(3))
+        .zip(rotations.par_chunks_mut(4))
+        .zip(densities.par_chunks_mut(m))
+        .map(|(((mean, scale), rotation), densities)| GradRow {
+            mean,
+            scale,
+            rotation,
+            densities,
+        })
 }
 
 #[cfg(test)]

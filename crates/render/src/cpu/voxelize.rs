@@ -18,11 +18,12 @@
 
 use rayon::prelude::*;
 
-use super::GaussianSlices;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::Avx2;
 use super::lanes::{LANES, Lanes, Portable, RowBatches, UpstreamGrad, dispatched, drain, has_avx2};
+use super::padded::PaddedRows;
 use super::tiles::{Bins, TileBox, tile_span};
+use super::{GaussianSlices, grad_rows};
 use crate::gaussian_math::{self as gm, voxel_backward};
 use crate::options::{VoxelGrid, VoxelizeOptions};
 
@@ -115,29 +116,29 @@ impl Centres {
     }
 }
 
-/// Volumes `[M][nz][ny][stride]` whose rows run `LANES` past the grid's `nx` (`stride = nx +
-/// LANES`), so a lane block starting at any voxel of a row lies inside its row.
-struct Padded {
-    dims: [usize; 3],
-    stride: usize,
+/// Where the voxels of slices `z0..` lie in a row-padded volume (`[M][z][y][nx + LANES]`).
+#[derive(Clone, Copy)]
+struct Slices {
+    rows: PaddedRows,
+    ny: usize,
+    z0: usize,
 }
 
-impl Padded {
-    fn new(dims: [usize; 3]) -> Self {
+impl Slices {
+    /// Slices `[z0, z1)` of `grid`.
+    fn new(grid: &VoxelGrid, z0: usize, z1: usize) -> Self {
+        let [nx, ny, _] = grid.dims;
         Self {
-            dims,
-            stride: dims[0] + LANES,
+            rows: PaddedRows::new(nx, (z1 - z0) * ny),
+            ny,
+            z0,
         }
-    }
-
-    fn channel_len(&self) -> usize {
-        self.dims[1] * self.dims[2] * self.stride
     }
 
     /// Offset of voxel `(x, y, z)` of channel `c`.
     #[inline(always)]
     fn at(&self, c: usize, x: usize, y: usize, z: usize) -> usize {
-        c * self.channel_len() + (z * self.dims[1] + y) * self.stride + x
+        self.rows.at(c, (z - self.z0) * self.ny + y, x)
     }
 }
 
@@ -146,7 +147,7 @@ impl Padded {
 #[derive(Clone, Copy)]
 struct Pass<'a> {
     centres: &'a Centres,
-    pad: &'a Padded,
+    pad: Slices,
     cut2: f32,
 }
 
@@ -225,11 +226,10 @@ fn block(v: &[f32], o: usize) -> &[f32; LANES] {
 
 dispatched! {
     /// Forward of splat `s`'s rows with `z` in `zs` into the slab buffer `buf` (laid out by
-    /// `pass.pad`, z counted from the slab's first slice `z0`) with densities `w`.
+    /// `pass.pad`) with densities `w`.
     fn voxel_forward(
         s: &VoxSplat,
         pass: Pass<'_>,
-        z0: usize,
         zs: std::ops::Range<usize>,
         w: &[f32],
         buf: &mut [f32],
@@ -239,7 +239,7 @@ dispatched! {
             let vb = VoxBlock::<L>::new(s, pass, x0);
             vb.rows(s, pass, zs.clone(), |y, z, _, _, g| {
                 for (ch, &w) in w.iter().enumerate() {
-                    let o = pass.pad.at(ch, x0, y, z - z0);
+                    let o = pass.pad.at(ch, x0, y, z);
                     let add = L::splat(w).mul(g).zero_outside(g, finite);
                     let row: &mut [f32; LANES] =
                         (&mut buf[o..o + LANES]).try_into().expect("row");
@@ -349,7 +349,7 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
     let cut2 = (opts.cutoff * opts.cutoff) as f32;
     let splats = prepare(g, grid, opts.cutoff);
     let centres = Centres::new(grid);
-    let [nx, ny, nz] = grid.dims;
+    let [_, ny, nz] = grid.dims;
     let slabs = nz.div_ceil(SLAB);
     let slab = |t: usize| (t * SLAB, ((t + 1) * SLAB).min(nz));
     let boxes: Vec<Option<TileBox>> = splats
@@ -366,35 +366,27 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
         .into_par_iter()
         .map(|t| {
             let (z0, z1) = slab(t);
-            let pad = Padded::new([nx, ny, z1 - z0]);
             let pass = Pass {
                 centres: &centres,
-                pad: &pad,
+                pad: Slices::new(grid, z0, z1),
                 cut2,
             };
-            let mut buf = vec![0.0f32; m * pad.channel_len()];
+            let mut buf = pass.pad.rows.zeros(m);
             for &gi in bins.of(t) {
                 let gi = gi as usize;
                 let Some(s) = &splats[gi] else { continue };
                 let dens = &g.densities[m * gi..m * gi + m];
                 let zs = s.lo[2].max(z0)..s.hi[2].min(z1);
-                voxel_forward(s, pass, z0, zs, dens, &mut buf);
+                voxel_forward(s, pass, zs, dens, &mut buf);
             }
             buf
         })
         .collect();
     for (t, buf) in buffers.iter().enumerate() {
         let (z0, z1) = slab(t);
-        let pad = Padded::new([nx, ny, z1 - z0]);
-        for c in 0..m {
-            for z in z0..z1 {
-                for y in 0..ny {
-                    let src = pad.at(c, 0, y, z - z0);
-                    let dst = c * vol + (z * ny + y) * nx;
-                    out[dst..dst + nx].copy_from_slice(&buf[src..src + nx]);
-                }
-            }
-        }
+        Slices::new(grid, z0, z1)
+            .rows
+            .unpad_into(buf, &mut out, nz * ny, z0 * ny);
     }
     out
 }
@@ -426,66 +418,42 @@ pub fn voxelize_backward(
     let cut2 = (opts.cutoff * opts.cutoff) as f32;
     let splats = prepare(g, grid, opts.cutoff);
     let centres = Centres::new(grid);
-    let nx = grid.dims[0];
-    // The upstream gradient with padded rows (zeros past the grid).
-    let pad = Padded::new(grid.dims);
-    let mut padded = vec![0.0f32; m * pad.channel_len()];
-    padded
-        .par_chunks_mut(pad.stride)
-        .zip(grad.par_chunks(nx))
-        .for_each(|(dst, src)| dst[..nx].copy_from_slice(src));
     let pass = Pass {
         centres: &centres,
-        pad: &pad,
+        pad: Slices::new(grid, 0, grid.dims[2]),
         cut2,
     };
+    let padded = pass.pad.rows.pad(grad);
     let upstream = UpstreamGrad {
         values: &padded,
         finite: grad.par_iter().all(|v| v.is_finite()),
     };
-    // Per Gaussian: [S_0..S_{M-1}, Σ wG d (3), Σ wG d dᵀ packed (6)], w = Σ_c ρ_c g_c.
-    let stride = m + 9;
-    let results: Vec<Option<([f64; 10], Vec<f64>)>> = splats
-        .par_iter()
+    // Per Gaussian: [S_0..S_{M-1}, Σ wG d (3), Σ wG d dᵀ packed (6)], w = Σ_c ρ_c g_c; chained
+    // to its parameters and written straight into the outputs.
+    let VoxelizeGrads {
+        means,
+        scales,
+        rotations,
+        densities,
+    } = &mut total;
+    grad_rows(means, scales, rotations, densities, m)
         .enumerate()
         .with_min_len(16)
-        .map_init(
-            || vec![[0.0f32; LANES]; m],
-            |lanes, (i, s)| {
-                let s = s.as_ref()?;
+        .for_each_init(
+            || (vec![0.0f64; m + 9], vec![[0.0f32; LANES]; m]),
+            |(sum, lanes), (i, mut row)| {
+                let Some(s) = &splats[i] else { return };
                 let dens = &g.densities[m * i..m * i + m];
-                let mut sum = vec![0.0f64; stride];
+                sum.fill(0.0);
                 for x0 in s.blocks() {
-                    voxel_backward_sums(s, pass, x0, upstream, dens, lanes, &mut sum);
+                    voxel_backward_sums(s, pass, x0, upstream, dens, lanes, sum);
                 }
                 let sum_d = [sum[m], sum[m + 1], sum[m + 2]];
                 let p = &sum[m + 3..m + 9];
                 let sum_dd = [[p[0], p[1], p[2]], [p[1], p[3], p[4]], [p[2], p[4], p[5]]];
                 let geo = voxel_backward(&g.geom(i), sum_d, &sum_dd);
-                let mut flat = [0.0f64; 10];
-                flat[..3].copy_from_slice(&geo.mean);
-                flat[3..6].copy_from_slice(&geo.scale);
-                flat[6..].copy_from_slice(&geo.quat);
-                sum.truncate(m);
-                flat.iter()
-                    .chain(&sum)
-                    .all(|x| x.is_finite())
-                    .then_some((flat, sum))
+                row.add(&geo, 1.0, &sum[..m]);
             },
-        )
-        .collect();
-    for (i, r) in results.into_iter().enumerate() {
-        let Some((flat, dens)) = r else { continue };
-        for q in 0..3 {
-            total.means[3 * i + q] = flat[q] as f32;
-            total.scales[3 * i + q] = flat[3 + q] as f32;
-        }
-        for q in 0..4 {
-            total.rotations[4 * i + q] = flat[6 + q] as f32;
-        }
-        for c in 0..m {
-            total.densities[m * i + c] = dens[c] as f32;
-        }
-    }
+        );
     total
 }

@@ -33,20 +33,14 @@ pub(super) fn backward(
         let near = opts.near_fraction * cam.sdd;
         let gview = &grad[v * m * plane..(v + 1) * m * plane];
         let prep = prepare(g, screen, prepared, v, cam, opts);
-        // The view's upstream gradient with padded rows (see `ViewGrad`).
-        let stride_px = det.cols + HALF;
-        let mut padded = vec![0.0f32; m * det.rows * stride_px];
-        padded
-            .par_chunks_mut(stride_px)
-            .zip(gview.par_chunks(det.cols))
-            .for_each(|(dst, src)| dst[..det.cols].copy_from_slice(src));
+        let band = Band::new(&det, 0, det.rows);
+        let padded = band.layout.pad(gview);
         let upstream = ViewGrad {
             values: UpstreamGrad {
                 values: &padded,
                 finite: gview.par_iter().all(|v| v.is_finite()),
             },
-            rows: det.rows,
-            stride: stride_px,
+            band,
         };
         // Per Gaussian, its sums over its own pixels. Affine: [S_0..S_{M-1}, Σ wG dx, Σ wG dy,
         // Σ wG dx², Σ wG dxdy, Σ wG dy²] with S_c = Σ g_c G and w = Σ_c ρ_c g_c. Exact:
@@ -57,19 +51,21 @@ pub(super) fn backward(
         };
         let gv = upstream.values.values;
         // Sum per Gaussian and chain to its parameters, written straight into the outputs.
-        let screen_view = &mut total.screen[2 * v * k..2 * (v + 1) * k];
-        total
-            .means
-            .par_chunks_mut(3)
-            .zip(total.scales.par_chunks_mut(3))
-            .zip(total.rotations.par_chunks_mut(4))
-            .zip(total.densities.par_chunks_mut(m))
+        let ProjectGrads {
+            means,
+            scales,
+            rotations,
+            densities,
+            screen: screens,
+        } = &mut total;
+        let screen_view = &mut screens[2 * v * k..2 * (v + 1) * k];
+        grad_rows(means, scales, rotations, densities, m)
             .zip(screen_view.par_chunks_mut(2))
             .enumerate()
             .with_min_len(64)
             .for_each_init(
                 || (vec![0.0f64; stride], vec![[0.0f32; HALF]; m]),
-                |(sum, lanes), (i, ((((out_mean, out_scale), out_rot), out_dens), out_screen))| {
+                |(sum, lanes), (i, (mut row, out_screen))| {
                     sum.fill(0.0);
                     let dens = &g.densities[m * i..m * i + m];
                     match &prep {
@@ -80,7 +76,7 @@ pub(super) fn backward(
                         Prepared::Exact(splats) => {
                             let Some((s, px)) = &splats[i] else { return };
                             exact_rays(cam, s, px, px[2]..px[3], cut2, |x, y, o, d, len, _| {
-                                let gc = |c: usize| gv[upstream.at(c, x, y)] as f64;
+                                let gc = |c: usize| gv[band.at(c, x, y)] as f64;
                                 let w: f64 = (0..m).map(|c| dens[c] as f64 * gc(c)).sum();
                                 let (val, g_c, g_p) =
                                     line_integral_backward(&s.ray_gaussian, o, d, len, w);
@@ -138,26 +134,10 @@ pub(super) fn backward(
                             (geo, 1.0, g_screen)
                         }
                     };
-                    let finite = geo
-                        .mean
-                        .iter()
-                        .chain(&geo.scale)
-                        .chain(&geo.quat)
-                        .chain(&g_screen)
-                        .all(|x| x.is_finite())
-                        && sum[..m].iter().all(|x| (dens_scale * x).is_finite());
-                    if !finite {
+                    if !g_screen.iter().all(|x| x.is_finite())
+                        || !row.add(&geo, dens_scale, &sum[..m])
+                    {
                         return;
-                    }
-                    for q in 0..3 {
-                        out_mean[q] += geo.mean[q] as f32;
-                        out_scale[q] += geo.scale[q] as f32;
-                    }
-                    for q in 0..4 {
-                        out_rot[q] += geo.quat[q] as f32;
-                    }
-                    for c in 0..m {
-                        out_dens[c] += (dens_scale * sum[c]) as f32;
                     }
                     out_screen[0] = g_screen[0] as f32;
                     out_screen[1] = g_screen[1] as f32;

@@ -24,11 +24,7 @@ pub(super) fn forward(
         let det = Detector::new(cam);
         let prep = prepare(g, screen, prepared, v, cam, opts);
         let n_bands = det.rows.div_ceil(BAND);
-        let band = |b: usize| Band {
-            y0: b * BAND,
-            y1: ((b + 1) * BAND).min(det.rows),
-            stride: det.cols + HALF,
-        };
+        let band = |b: usize| Band::new(&det, b * BAND, ((b + 1) * BAND).min(det.rows));
         let boxes: Vec<Option<TileBox>> = (0..g.len())
             .map(|i| {
                 prep.rows(i).map(|r| TileBox {
@@ -42,7 +38,7 @@ pub(super) fn forward(
             .into_par_iter()
             .map(|b| {
                 let band = band(b);
-                let mut buf = vec![0.0f32; m * band.len()];
+                let mut buf = band.layout.zeros(m);
                 let list = bins.of(b);
                 match &prep {
                     Prepared::Affine(splats) => {
@@ -62,7 +58,7 @@ pub(super) fn forward(
                         }
                     }
                     Prepared::Exact(splats) => {
-                        let mut acc = vec![0.0f64; m * band.len()];
+                        let mut acc = vec![0.0f64; buf.len()];
                         for &gi in list {
                             let gi = gi as usize;
                             let Some((s, px)) = &splats[gi] else { continue };
@@ -86,13 +82,7 @@ pub(super) fn forward(
         let view_out = &mut out[v * m * plane..(v + 1) * m * plane];
         for (b, buf) in bands.iter().enumerate() {
             let band = band(b);
-            for c in 0..m {
-                for y in band.y0..band.y1 {
-                    let src = band.at(c, 0, y);
-                    let dst = c * plane + y * det.cols;
-                    view_out[dst..dst + det.cols].copy_from_slice(&buf[src..src + det.cols]);
-                }
-            }
+            band.layout.unpad_into(buf, view_out, det.rows, band.y0);
         }
     }
     out

@@ -30,11 +30,12 @@ use rows::*;
 
 use rayon::prelude::*;
 
-use super::GaussianSlices;
 #[cfg(target_arch = "x86_64")]
 use super::lanes::Avx2;
 use super::lanes::{LANES, Lanes, Portable, RowBatches, UpstreamGrad, dispatched, drain, has_avx2};
+use super::padded::PaddedRows;
 use super::tiles::{Bins, TileBox, tile_span};
+use super::{GaussianSlices, grad_rows};
 use crate::camera::Camera;
 use crate::gaussian_math::{
     self as gm, ExactSplat, GaussianGeom, SplatGrad, camera_ray, exact_splat, exact_splat_backward,

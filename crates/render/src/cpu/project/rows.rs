@@ -97,25 +97,28 @@ const LANE_OFFSETS: [f32; HALF] = {
     a
 };
 
-/// Rows `[y0, y1)` of the detector held by one forward task, laid out `[M][rows][stride]` with
-/// rows `HALF` pixels longer than the detector's, so a lane block starting at any column lies
-/// inside its row.
+/// Detector rows `[y0, y1)` in a row-padded buffer (`[M][y1 − y0][cols + HALF]`): a forward
+/// task's band, or the whole view for the backward's upstream gradient.
 #[derive(Clone, Copy)]
 pub(super) struct Band {
     pub(super) y0: usize,
     pub(super) y1: usize,
-    pub(super) stride: usize,
+    pub(super) layout: PaddedRows,
 }
 
 impl Band {
-    pub(super) fn len(&self) -> usize {
-        (self.y1 - self.y0) * self.stride
+    pub(super) fn new(det: &Detector, y0: usize, y1: usize) -> Self {
+        Self {
+            y0,
+            y1,
+            layout: PaddedRows::new(det.cols, y1 - y0),
+        }
     }
 
     /// Offset of pixel `(x, y)` of channel `c`.
     #[inline(always)]
     pub(super) fn at(&self, c: usize, x: usize, y: usize) -> usize {
-        (c * (self.y1 - self.y0) + y - self.y0) * self.stride + x
+        self.layout.at(c, y - self.y0, x)
     }
 }
 
@@ -147,22 +150,12 @@ dispatched! {
 /// the tile height that bounded them when the sums were per detector tile).
 const FLUSH_ROWS: usize = 16;
 
-/// The upstream gradient of one view as the backward reads it: `[M][rows][stride]`, every row
-/// `HALF` pixels longer than the detector's (zeros), so a lane block starting at any column lies
-/// inside its row.
+/// The upstream gradient of one view as the backward reads it: every row of the detector
+/// ([`Band`]), padded.
 #[derive(Clone, Copy)]
 pub(super) struct ViewGrad<'a> {
     pub(super) values: UpstreamGrad<'a>,
-    pub(super) rows: usize,
-    pub(super) stride: usize,
-}
-
-impl ViewGrad<'_> {
-    /// Offset of pixel `(x, y)` of channel `c`.
-    #[inline(always)]
-    pub(super) fn at(&self, c: usize, x: usize, y: usize) -> usize {
-        (c * self.rows + y) * self.stride + x
-    }
+    pub(super) band: Band,
 }
 
 /// Widen one block's f32 row sums (`lw`, `ly`, `lyy` and the per-channel `g_c G` in `lanes`)
@@ -219,11 +212,11 @@ dispatched! {
                 };
                 let e = sb.row(s, dy, gdy);
                 let u = if single {
-                    L::load(block(gv, grad.at(0, bx, y)))
+                    L::load(block(gv, grad.band.at(0, bx, y)))
                 } else {
                     let mut u = L::zero();
                     for (c, &rho) in dens.iter().enumerate() {
-                        let gc = L::load(block(gv, grad.at(c, bx, y)));
+                        let gc = L::load(block(gv, grad.band.at(c, bx, y)));
                         let sc = e.mul(gc).zero_outside(e, finite);
                         L::load(&lanes[c]).add(sc).store(&mut lanes[c]);
                         u = L::splat(rho).mul_add(gc, u);
