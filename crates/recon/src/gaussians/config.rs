@@ -28,6 +28,8 @@ pub struct GeometryConfig {
     pub scale_bounds: ScaleBounds,
     pub lr: LearningRates,
     pub loss: LossConfig,
+    /// How many training views one step fits: `cover` (default) or `one` ([`ViewsPerStep`]).
+    pub views_per_step: ViewsPerStep,
     /// How training views are rendered (`mode: affine | exact`, `cutoff`); the trained model
     /// keeps it, so queries render the same way.
     pub projection: ProjectionConfig,
@@ -57,6 +59,7 @@ impl Default for GeometryConfig {
             },
             lr: LearningRates::default(),
             loss: LossConfig::default(),
+            views_per_step: ViewsPerStep::default(),
             projection: ProjectionConfig::default(),
             densify: Some(DensifyConfig::default()),
             eval_every: 250,
@@ -64,6 +67,23 @@ impl Default for GeometryConfig {
             device: DeviceChoice::default(),
         }
     }
+}
+
+/// How many training views one step fits (YAML `views_per_step`). Either way a step draws its
+/// views from the current pass over the training views (each view once per pass, reshuffled),
+/// and its loss is the mean over the images it fits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewsPerStep {
+    /// Views until every supervised channel has been fitted once, or the pass ends: one view
+    /// where each view measures every channel (a shared acquisition, or one channel), C views on
+    /// an interleaved scan of C channels. Every step then fits every channel, so the iteration
+    /// count means the same on both kinds of scan.
+    #[default]
+    Cover,
+    /// One view per step, whatever it measures (R²-Gaussian upstream): on an interleaved scan
+    /// each channel is fitted at 1/C of the steps.
+    One,
 }
 
 /// Projection settings of training and of queries (YAML `projection:`; every field optional).

@@ -35,6 +35,10 @@ impl PartialEq for Fingerprint {
 /// Settings no saved state depends on: where it runs and how often it is saved.
 const NEVER: [&str; 2] = ["device", "checkpoint_every"];
 
+/// Settings added with a default that differs from what a file written before them was trained
+/// with: their absence from a saved state stands for this value, not for today's default.
+const BEFORE: [(&str, &str); 1] = [("views_per_step", "one")];
+
 impl Fingerprint {
     /// The fingerprint of `config` on `scene`, leaving out the keys `ignore` (and [`NEVER`]);
     /// `extra` entries are added to the settings (options outside the config).
@@ -54,8 +58,15 @@ impl Fingerprint {
                 map.insert(key.to_string(), v.clone());
             }
         }
-        let defaults = serde_json::to_value(C::default())
+        let mut defaults = serde_json::to_value(C::default())
             .map_err(|e| Error::invalid("config", format!("not serialisable: {e}")))?;
+        if let Value::Object(map) = &mut defaults {
+            for (key, v) in BEFORE {
+                if map.contains_key(key) {
+                    map.insert(key.to_string(), Value::from(v));
+                }
+            }
+        }
         Ok(Fingerprint {
             scene: scene.name.clone(),
             scene_digest: scene_digest(scene),

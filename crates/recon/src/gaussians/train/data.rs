@@ -13,8 +13,23 @@ pub struct View {
     pub camera: Camera,
     /// Normalised line integrals `[1, n, rows, cols]` of the supervised columns.
     pub target: Tensor<4>,
-    /// The density columns supervised here (increasing), when not all of them.
-    pub columns: Option<Tensor<1, Int>>,
+    /// The density columns supervised here, when not all of them.
+    pub columns: Option<Columns>,
+}
+
+/// The density columns a view supervises (increasing): on the host, and as the index tensor that
+/// selects them from a rendered view.
+pub struct Columns {
+    pub list: Vec<usize>,
+    pub index: Tensor<1, Int>,
+}
+
+impl Columns {
+    pub fn new(list: Vec<usize>, device: &Device) -> Columns {
+        let idx: Vec<i64> = list.iter().map(|&i| i as i64).collect();
+        let index = Tensor::<1, Int>::from_data(TensorData::new(idx, [list.len()]), device);
+        Columns { list, index }
+    }
 }
 
 /// What a stage fits: views and the number of density columns the model renders.
@@ -54,10 +69,7 @@ impl Supervision {
                         cols,
                         device,
                     ),
-                    columns: c.map(|c| {
-                        let idx: Vec<i64> = c.iter().map(|&i| i as i64).collect();
-                        Tensor::<1, Int>::from_data(TensorData::new(idx, [c.len()]), device)
-                    }),
+                    columns: c.map(|c| Columns::new(c, device)),
                 }
             })
             .collect();

@@ -40,14 +40,7 @@ pub fn count_weights(sup: &Supervision, factor: f32) -> Vec<Tensor<4>> {
         .map(|v| {
             let b = host_values(&v.target);
             let channels: Vec<usize> = match &v.columns {
-                Some(c) => c
-                    .to_data()
-                    .convert::<i64>()
-                    .try_to_vec::<i64>()
-                    .expect("column indices")
-                    .into_iter()
-                    .map(|i| i as usize)
-                    .collect(),
+                Some(c) => c.list.clone(),
                 None => (0..v.target.dims()[1]).collect(),
             };
             let px = b.len() / channels.len().max(1);
@@ -271,24 +264,20 @@ mod tests {
 
     #[test]
     fn count_weights_are_inverse_noise_scales_with_mean_one_per_channel() {
-        use super::super::data::View;
-        use burn::tensor::Int;
+        use super::super::data::{Columns, View};
         use prism_domain::geometry::Beam;
         let dev = device();
         let g = prism_domain::testing::geometry(Beam::Cone, 8, 2, 2, false);
         let f = 2.5f32;
         // `[1, n, 1, 2]` targets of line integrals `b` (normalised: b·f); channel 0 is missing
         // at the second view.
-        let view = |b: &[f32], columns: Option<Vec<i64>>| View {
+        let view = |b: &[f32], columns: Option<Vec<usize>>| View {
             camera: g.camera(0),
             target: Tensor::from_data(
                 TensorData::new(b.iter().map(|x| x * f).collect(), [1, b.len() / 2, 1, 2]),
                 &dev,
             ),
-            columns: columns.map(|c| {
-                let n = c.len();
-                Tensor::<1, Int>::from_data(TensorData::new(c, [n]), &dev)
-            }),
+            columns: columns.map(|c| Columns::new(c, &dev)),
         };
         let sup = Supervision {
             views: vec![

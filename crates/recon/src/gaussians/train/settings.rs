@@ -3,7 +3,9 @@
 
 use super::head::ChannelMix;
 use crate::Result;
-use crate::gaussians::config::{DensifyConfig, GeometryConfig, LearningRates, LossConfig};
+use crate::gaussians::config::{
+    DensifyConfig, GeometryConfig, LearningRates, LossConfig, ViewsPerStep,
+};
 use crate::gaussians::{Learnable, World};
 use prism_domain::geometry::VolumeGrid;
 use prism_render::ProjectOptions;
@@ -18,6 +20,8 @@ pub struct Stage<'a> {
     pub learn: Learnable,
     pub lr: &'a LearningRates,
     pub loss: &'a LossConfig,
+    /// How many training views a step fits.
+    pub views_per_step: ViewsPerStep,
     /// How the training views are rendered.
     pub projection: ProjectOptions,
     pub densify: Option<&'a DensifyConfig>,
@@ -77,6 +81,7 @@ impl<'a> Stage<'a> {
             learn: Learnable::ALL,
             lr: &config.lr,
             loss: &config.loss,
+            views_per_step: config.views_per_step,
             projection: config.projection.options(),
             densify: config.densify.as_ref(),
             eval_every: config.eval_every,

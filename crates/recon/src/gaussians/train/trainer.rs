@@ -17,7 +17,7 @@ use super::head::DensityNet;
 use super::loss::{SsimWindow, count_weights, l1, total_variation, weighted_l1};
 use super::settings::Stage;
 use crate::gaussians::GaussianModel;
-use crate::gaussians::config::{DataWeighting, Rates};
+use crate::gaussians::config::{DataWeighting, Rates, ViewsPerStep};
 use crate::gaussians::model::softplus;
 use crate::record::log::LossTerms;
 use crate::{Error, Result};
@@ -91,6 +91,8 @@ pub struct Trainer<'a> {
     rng: ChaCha8Rng,
     /// Views still to draw in this pass.
     order: Vec<usize>,
+    /// The supervised columns some training view measures (what a `cover` step draws views for).
+    supervised: Vec<bool>,
     /// The volume grid in normalised units (the TV patch's voxel size) and its box.
     grid: VolumeGrid,
     bbox: ([f64; 3], [f64; 3]),
@@ -139,7 +141,15 @@ impl<'a> Trainer<'a> {
                 Some(count_weights(sup, stage.world.projection_factor() as f32))
             }
         };
+        let mut supervised = vec![false; sup.columns];
+        for v in &sup.views {
+            match &v.columns {
+                Some(c) => c.list.iter().for_each(|&c| supervised[c] = true),
+                None => supervised.fill(true),
+            }
+        }
         Ok(Trainer {
+            supervised,
             weights,
             window: SsimWindow::new(&device.autodiff()),
             rng: ChaCha8Rng::seed_from_u64(stage.seed),
@@ -249,12 +259,7 @@ impl<'a> Trainer<'a> {
     /// One iteration (see the module docs).
     pub fn step(&mut self, plan: &StepPlan) -> Result<StepStats> {
         let (sup, stage) = (self.sup, self.stage);
-        if self.order.is_empty() {
-            self.order = (0..sup.views.len()).collect();
-            self.order.shuffle(&mut self.rng);
-        }
-        let index = self.order.pop().expect("refilled");
-        let view = &sup.views[index];
+        let batch = self.draw();
 
         let t0 = Instant::now();
         let mut act = self.model.activate(Some(stage.learn));
@@ -267,26 +272,43 @@ impl<'a> Trainer<'a> {
             }
             None => None,
         };
-        let probe = self.stats.as_ref().map(|_| screen_probe(&act.gaussians, 1));
-        let mut img = project(
+        let probe = self
+            .stats
+            .as_ref()
+            .map(|_| screen_probe(&act.gaussians, batch.len()));
+        let cameras: Vec<_> = batch.iter().map(|&i| sup.views[i].camera).collect();
+        let img = stage.map.project(project(
             &act.gaussians,
-            std::slice::from_ref(&view.camera),
+            &cameras,
             probe.as_ref(),
             &stage.projection,
-        )?;
-        img = stage.map.project(img);
-        if let Some(c) = &view.columns {
-            img = img.select(1, c.clone());
-        }
+        )?);
         let t1 = Instant::now();
 
-        let l_1 = match &self.weights {
-            Some(w) => weighted_l1(img.clone(), view.target.clone(), w[index].clone()),
-            None => l1(img.clone(), view.target.clone()),
-        };
+        // The data terms of every drawn view, averaged over the views (one view: as they are).
+        let mut l_1 = Vec::with_capacity(batch.len());
+        let mut dssim = Vec::with_capacity(batch.len());
+        for (b, &index) in batch.iter().enumerate() {
+            let view = &sup.views[index];
+            let mut img = match batch.len() {
+                1 => img.clone(),
+                _ => img.clone().narrow(0, b, 1),
+            };
+            if let Some(c) = &view.columns {
+                img = img.select(1, c.index.clone());
+            }
+            l_1.push(match &self.weights {
+                Some(w) => weighted_l1(img.clone(), view.target.clone(), w[index].clone()),
+                None => l1(img.clone(), view.target.clone()),
+            });
+            if stage.loss.lambda_dssim > 0.0 {
+                dssim.push(self.window.ssim(img, view.target.clone()).neg() + 1.0);
+            }
+        }
+        let l_1 = batch_mean(l_1);
         let mut total = l_1.clone();
-        let dssim = (stage.loss.lambda_dssim > 0.0).then(|| {
-            let d = self.window.ssim(img.clone(), view.target.clone()).neg() + 1.0;
+        let dssim = (!dssim.is_empty()).then(|| {
+            let d = batch_mean(dssim);
             total = total.clone() + d.clone() * stage.loss.lambda_dssim;
             d
         });
@@ -378,6 +400,19 @@ impl<'a> Trainer<'a> {
         })
     }
 
+    /// The training views of one step ([`draw_views`]).
+    fn draw(&mut self) -> Vec<usize> {
+        let views = &self.sup.views;
+        draw_views(
+            &mut self.order,
+            &mut self.rng,
+            views.len(),
+            |i| views[i].columns.as_ref().map(|c| c.list.as_slice()),
+            &self.supervised,
+            self.stage.views_per_step,
+        )
+    }
+
     /// Add this step's view-space gradient to the statistics and, when `plan` says so, clone,
     /// split and prune with them.
     fn densify(
@@ -413,6 +448,62 @@ impl<'a> Trainer<'a> {
             ));
         }
         Ok(Some(counts))
+    }
+}
+
+/// The training views of one step ([`ViewsPerStep`]) among `n`, drawn from the current pass
+/// `order` (views are taken from its end; a new pass of all `n`, shuffled with `rng`, when it is
+/// empty): the next view, and with `cover` then, while some column marked in `supervised` has
+/// not been drawn, the next view of the pass that measures one of them (`columns(i)`: view i's
+/// columns, None for all), until none is left in the pass. The views passed over stay in the
+/// pass for the next steps, so a pass still holds every view once; on an interleaved scan of C
+/// channels a step holds one view of each.
+fn draw_views<'c>(
+    order: &mut Vec<usize>,
+    rng: &mut ChaCha8Rng,
+    n: usize,
+    columns: impl Fn(usize) -> Option<&'c [usize]>,
+    supervised: &[bool],
+    mode: ViewsPerStep,
+) -> Vec<usize> {
+    if order.is_empty() {
+        *order = (0..n).collect();
+        order.shuffle(rng);
+    }
+    let mut missing = supervised.to_vec();
+    let mut batch = Vec::with_capacity(1);
+    let fills = |i: usize, missing: &[bool]| match columns(i) {
+        Some(c) => c.iter().any(|&c| missing[c]),
+        None => true,
+    };
+    while let Some(at) = order
+        .iter()
+        .rposition(|&i| batch.is_empty() || fills(i, &missing))
+    {
+        let i = order.remove(at);
+        batch.push(i);
+        match columns(i) {
+            Some(c) => c.iter().for_each(|&c| missing[c] = false),
+            None => missing.fill(false),
+        }
+        if mode == ViewsPerStep::One || !missing.contains(&true) {
+            break;
+        }
+    }
+    batch
+}
+
+/// The mean of a step's per-view loss terms (a single term as it is, so one-view steps are
+/// unchanged).
+fn batch_mean(terms: Vec<Tensor<1>>) -> Tensor<1> {
+    let n = terms.len();
+    let sum = terms
+        .into_iter()
+        .reduce(|a, b| a + b)
+        .expect("a step draws at least one view");
+    match n {
+        1 => sum,
+        _ => sum / n as f64,
     }
 }
 
@@ -467,5 +558,101 @@ impl GradStats {
             .zip(&c)
             .map(|(s, c)| if *c > 0.0 { s / c } else { 0.0 })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every step of `passes` passes over `n` views of `columns` (None: every column).
+    fn steps(
+        n: usize,
+        columns: &[Option<Vec<usize>>],
+        supervised: &[bool],
+        mode: ViewsPerStep,
+        passes: usize,
+    ) -> Vec<Vec<usize>> {
+        let (mut order, mut rng) = (Vec::new(), ChaCha8Rng::seed_from_u64(7));
+        let mut out = Vec::new();
+        let mut drawn = 0;
+        while drawn < passes * n {
+            let b = draw_views(
+                &mut order,
+                &mut rng,
+                n,
+                |i| columns[i].as_deref(),
+                supervised,
+                mode,
+            );
+            drawn += b.len();
+            out.push(b);
+        }
+        assert_eq!(drawn, passes * n, "steps never straddle two passes");
+        out
+    }
+
+    #[test]
+    fn a_shared_acquisition_draws_one_view_per_step_in_the_upstream_order() {
+        // Every view measures every column: `cover` is `one`, and both are the single-view rule
+        // (pop from a pass shuffled by the stage's stream), so shared scans train as before.
+        let n = 11;
+        let all = vec![None; n];
+        let cover = steps(n, &all, &[true; 3], ViewsPerStep::Cover, 3);
+        let one = steps(n, &all, &[true; 3], ViewsPerStep::One, 3);
+        assert_eq!(cover, one);
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut upstream = Vec::new();
+        for _ in 0..3 {
+            let mut order: Vec<usize> = (0..n).collect();
+            order.shuffle(&mut rng);
+            upstream.extend(order.into_iter().rev().map(|i| vec![i]));
+        }
+        assert_eq!(cover, upstream);
+    }
+
+    #[test]
+    fn an_interleaved_scan_draws_views_until_every_channel_is_fitted() {
+        // Channel c at the views v ≡ c (mod 3); channel 3 is measured nowhere and must not
+        // hold a step up.
+        let n = 12;
+        let columns: Vec<_> = (0..n).map(|v| Some(vec![v % 3])).collect();
+        let supervised = [true, true, true, false];
+        let batches = steps(n, &columns, &supervised, ViewsPerStep::Cover, 4);
+        // One view of each channel per step until a pass runs short of some channel: with four
+        // views of each per pass, every step of a pass fits all three.
+        for b in &batches {
+            let mut ch: Vec<usize> = b.iter().map(|v| v % 3).collect();
+            ch.sort();
+            assert_eq!(ch, [0, 1, 2], "{b:?}");
+        }
+        assert_eq!(batches.len(), 4 * 4);
+        // Each pass holds every view once.
+        let mut drawn = 0;
+        let mut pass: Vec<usize> = Vec::new();
+        for b in &batches {
+            pass.extend(b);
+            drawn += b.len();
+            if drawn % n == 0 {
+                pass.sort();
+                assert_eq!(pass, (0..n).collect::<Vec<_>>());
+                pass.clear();
+            }
+        }
+        // `one` keeps single views on the same scan.
+        let one = steps(n, &columns, &supervised, ViewsPerStep::One, 2);
+        assert!(one.iter().all(|b| b.len() == 1));
+        // Unequal channels (7 views of channel 0, 3 of channel 1): three steps of a pass pair
+        // the channels, the other four fit channel 0 alone.
+        let columns: Vec<_> = (0..10).map(|v| Some(vec![usize::from(v >= 7)])).collect();
+        let batches = steps(10, &columns, &[true, true], ViewsPerStep::Cover, 2);
+        assert_eq!(batches.len(), 2 * 7);
+        let pairs = batches.iter().filter(|b| b.len() == 2).count();
+        assert_eq!(pairs, 2 * 3);
+        assert!(
+            batches
+                .iter()
+                .all(|b| b.len() == 1 || (b[0] < 7) != (b[1] < 7))
+        );
     }
 }

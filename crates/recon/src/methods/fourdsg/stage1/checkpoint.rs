@@ -187,4 +187,26 @@ mod tests {
             "{why}"
         );
     }
+
+    #[test]
+    fn a_checkpoint_from_before_views_per_step_was_trained_one_view_at_a_time() {
+        // Its absence stands for `one`, the only behaviour then, not for today's `cover`.
+        let scene = crate::pipeline::tests::scene();
+        let config = FourDsgConfig::default();
+        let mut old = fingerprint(&config, &scene).unwrap();
+        old.settings
+            .as_object_mut()
+            .unwrap()
+            .remove("views_per_step");
+        let why = old
+            .mismatch(&fingerprint(&config, &scene).unwrap())
+            .unwrap();
+        assert!(
+            why.contains("`views_per_step`") && why.contains("one") && why.contains("cover"),
+            "{why}"
+        );
+        let mut one = config;
+        one.geometry.views_per_step = crate::gaussians::config::ViewsPerStep::One;
+        assert_eq!(old.mismatch(&fingerprint(&one, &scene).unwrap()), None);
+    }
 }

@@ -105,7 +105,7 @@ fn the_joint_loss_is_the_sum_of_the_per_channel_losses_where_they_exist() {
         assert_eq!(sc.available_channels(v), vec![v % 2]);
         let mut img = ChannelMap::Mix(&head).project(render(&model, view.camera));
         if let Some(c) = &view.columns {
-            img = img.select(1, c.clone());
+            img = img.select(1, c.index.clone());
         }
         let joint: f64 = host_values(&(img - view.target.clone()).abs().reshape([-1]))
             .iter()
