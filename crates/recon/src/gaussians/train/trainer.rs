@@ -1,11 +1,13 @@
 //! One training iteration: [`Trainer::step`].
 //!
-//! A step draws one training view (without replacement until every view was used, then
-//! reshuffled; seeded), renders every density column supervised at that view in one projection,
-//! minimises `L1 + λ_dssim·(1 − SSIM) + λ_tv·TV(32³ patch)` (terms with weight 0 are not
-//! computed; a density network adds its regulariser, 4D-SG's `λ_curve·L_curve`), and takes one
-//! Adam step of each learnable group at the rates the [`StepPlan`] gives. When densification is
-//! on, the view-space gradient statistics are accumulated and, when the plan says so,
+//! A step draws its training views (without replacement until every view was used, then
+//! reshuffled; seeded): one, or with `views_per_step: cover` one of every channel on a scan whose
+//! views measure different channels ([`draw_views`]). It renders them in one projection,
+//! minimises the mean over the views of `L1 + λ_dssim·(1 − SSIM)` plus `λ_tv·TV(32³ patch)`
+//! (terms with weight 0 are not computed; a density network adds its regulariser, 4D-SG's
+//! `λ_curve·L_curve`), and takes one Adam step of each learnable group at the rates the
+//! [`StepPlan`] gives. When densification is on, the view-space gradient statistics are
+//! accumulated (a step's norms summed over its views, counted once) and, when the plan says so,
 //! clone/split/prune runs (after that step's Adam update; upstream skips the update at those
 //! iterations). What happens when is the driver's business ([`super::train`]); the trainer only
 //! does it.
