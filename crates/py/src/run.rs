@@ -4,13 +4,14 @@
 //!
 //! Progress goes to an optional Python callable, `callback(kind, name_or_done, total_or_status)`
 //! (`("phase", name, total)`, `("progress", done, status)`, `("note", level, text)`), called with
-//! the GIL taken back for the call. Ctrl-C: every report from the calling (main) thread checks
-//! Python's signals; a pending `KeyboardInterrupt` stops a training method at its next step (its
-//! state is saved, as the CLI's SIGINT does), and the call then raises `KeyboardInterrupt`.
+//! the GIL taken back for the call. Ctrl-C: the run works on its own thread while the calling
+//! (main) thread checks Python's signals every 50 ms; a pending `KeyboardInterrupt` stops a
+//! training method at its next step (its state is saved, as the CLI's SIGINT does), and the call
+//! then raises `KeyboardInterrupt`.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::thread::ThreadId;
+use std::time::Duration;
 
 use ndarray::{Array2, ArrayView2, ArrayView4};
 use numpy::{PyReadonlyArray2, PyReadonlyArray4, PyUntypedArrayMethods};
@@ -26,11 +27,13 @@ use pyo3::prelude::*;
 
 use crate::{geometry, value_error};
 
-/// Reports to a Python callable; turns a pending Ctrl-C into the run's stop flag.
+/// How often the calling thread looks for a pending Ctrl-C while a run works.
+const WATCH: Duration = Duration::from_millis(50);
+
+/// Reports to a Python callable; its stop flag is the run's (set by Ctrl-C, see [`reconstruct`]).
 struct PyObserver {
     callback: Option<Py<PyAny>>,
     stop: AtomicBool,
-    main: ThreadId,
 }
 
 impl PyObserver {
@@ -39,14 +42,10 @@ impl PyObserver {
         A: for<'py> IntoPyObject<'py>,
         B: for<'py> IntoPyObject<'py>,
     {
-        let here = std::thread::current().id() == self.main;
-        if self.callback.is_none() && !here {
+        if self.callback.is_none() {
             return;
         }
         Python::attach(|py| {
-            if here && py.check_signals().is_err() {
-                self.stop.store(true, Ordering::Relaxed);
-            }
             if let Some(f) = &self.callback
                 && let Err(e) = f.call1(py, (kind, a, b))
             {
@@ -168,7 +167,6 @@ pub fn reconstruct(
     let observer = PyObserver {
         callback,
         stop: AtomicBool::new(false),
-        main: std::thread::current().id(),
     };
     let checkpoint = if config.method().trains() {
         Some(Checkpointing::default_path(&out).map_err(value_error)?)
@@ -177,19 +175,34 @@ pub fn reconstruct(
     };
     let dir = RunDir::create(&out, force).map_err(value_error)?;
     let device = config.device().device().map_err(value_error)?;
+    // The run works on a thread of its own while the calling (main) thread watches for Ctrl-C:
+    // Python runs signal handlers only on the main thread, and the run's own threads may not
+    // report from it for a long time.
     let result = py.detach(|| {
-        let options = RunOptions {
-            device,
-            from_geometry: None,
-            observer: &observer,
-            evaluation: &evaluation,
-            checkpoint: checkpoint.map(|path| Checkpointing {
-                path,
-                resume: false,
-                stop: Some(&observer.stop),
-            }),
-        };
-        pipeline::run(&config, &scene, dir, &options)
+        std::thread::scope(|s| {
+            let work = s.spawn(|| {
+                let options = RunOptions {
+                    device,
+                    from_geometry: None,
+                    observer: &observer,
+                    evaluation: &evaluation,
+                    checkpoint: checkpoint.map(|path| Checkpointing {
+                        path,
+                        resume: false,
+                        stop: Some(&observer.stop),
+                    }),
+                };
+                pipeline::run(&config, &scene, dir, &options)
+            });
+            while !work.is_finished() {
+                if Python::attach(|py| py.check_signals().is_err()) {
+                    observer.stop.store(true, Ordering::Relaxed);
+                }
+                std::thread::sleep(WATCH);
+            }
+            work.join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+        })
     });
     match result {
         Ok(outcome) => Ok(outcome.dir.to_string_lossy().into_owned()),
