@@ -75,9 +75,9 @@ impl Default for GeometryConfig {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ViewsPerStep {
-    /// Views until every supervised channel has been fitted once, or the pass ends: one view
-    /// where each view measures every channel (a shared acquisition, or one channel), C views on
-    /// an interleaved scan of C channels. Every step then fits every channel, so the iteration
+    /// After the first view, the next view of the pass that measures a channel not yet fitted,
+    /// until every channel is or the pass has none left: one view where each view measures every
+    /// channel (a shared acquisition, or one channel), one of each channel on an interleaved scan. Every step then fits every channel, so the iteration
     /// count means the same on both kinds of scan.
     #[default]
     Cover,

@@ -93,8 +93,6 @@ pub struct Trainer<'a> {
     rng: ChaCha8Rng,
     /// Views still to draw in this pass.
     order: Vec<usize>,
-    /// The supervised columns some training view measures (what a `cover` step draws views for).
-    supervised: Vec<bool>,
     /// The volume grid in normalised units (the TV patch's voxel size) and its box.
     grid: VolumeGrid,
     bbox: ([f64; 3], [f64; 3]),
@@ -143,15 +141,7 @@ impl<'a> Trainer<'a> {
                 Some(count_weights(sup, stage.world.projection_factor() as f32))
             }
         };
-        let mut supervised = vec![false; sup.columns];
-        for v in &sup.views {
-            match &v.columns {
-                Some(c) => c.list.iter().for_each(|&c| supervised[c] = true),
-                None => supervised.fill(true),
-            }
-        }
         Ok(Trainer {
-            supervised,
             weights,
             window: SsimWindow::new(&device.autodiff()),
             rng: ChaCha8Rng::seed_from_u64(stage.seed),
@@ -410,7 +400,7 @@ impl<'a> Trainer<'a> {
             &mut self.rng,
             views.len(),
             |i| views[i].columns.as_ref().map(|c| c.list.as_slice()),
-            &self.supervised,
+            self.sup.columns,
             self.stage.views_per_step,
         )
     }
@@ -455,9 +445,9 @@ impl<'a> Trainer<'a> {
 
 /// The training views of one step ([`ViewsPerStep`]) among `n`, drawn from the current pass
 /// `order` (views are taken from its end; a new pass of all `n`, shuffled with `rng`, when it is
-/// empty): the next view, and with `cover` then, while some column marked in `supervised` has
-/// not been drawn, the next view of the pass that measures one of them (`columns(i)`: view i's
-/// columns, None for all), until none is left in the pass. The views passed over stay in the
+/// empty): the next view, and with `cover` then, while some of the `total` columns has not been
+/// drawn, the next view of the pass that measures one of them (`columns(i)`: view i's columns,
+/// None for all), until none is left in the pass (a column no view measures holds no step up). The views passed over stay in the
 /// pass for the next steps, so a pass still holds every view once; on an interleaved scan of C
 /// channels a step holds one view of each.
 fn draw_views<'c>(
@@ -465,14 +455,14 @@ fn draw_views<'c>(
     rng: &mut ChaCha8Rng,
     n: usize,
     columns: impl Fn(usize) -> Option<&'c [usize]>,
-    supervised: &[bool],
+    total: usize,
     mode: ViewsPerStep,
 ) -> Vec<usize> {
     if order.is_empty() {
         *order = (0..n).collect();
         order.shuffle(rng);
     }
-    let mut missing = supervised.to_vec();
+    let mut missing = vec![true; total];
     let mut batch = Vec::with_capacity(1);
     let fills = |i: usize, missing: &[bool]| match columns(i) {
         Some(c) => c.iter().any(|&c| missing[c]),
@@ -567,11 +557,11 @@ impl GradStats {
 mod tests {
     use super::*;
 
-    /// Every step of `passes` passes over `n` views of `columns` (None: every column).
+    /// Every step of `passes` passes over `n` views of `columns` (None: all `total`).
     fn steps(
         n: usize,
         columns: &[Option<Vec<usize>>],
-        supervised: &[bool],
+        total: usize,
         mode: ViewsPerStep,
         passes: usize,
     ) -> Vec<Vec<usize>> {
@@ -584,7 +574,7 @@ mod tests {
                 &mut rng,
                 n,
                 |i| columns[i].as_deref(),
-                supervised,
+                total,
                 mode,
             );
             drawn += b.len();
@@ -600,8 +590,8 @@ mod tests {
         // (pop from a pass shuffled by the stage's stream), so shared scans train as before.
         let n = 11;
         let all = vec![None; n];
-        let cover = steps(n, &all, &[true; 3], ViewsPerStep::Cover, 3);
-        let one = steps(n, &all, &[true; 3], ViewsPerStep::One, 3);
+        let cover = steps(n, &all, 3, ViewsPerStep::Cover, 3);
+        let one = steps(n, &all, 3, ViewsPerStep::One, 3);
         assert_eq!(cover, one);
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let mut upstream = Vec::new();
@@ -619,8 +609,7 @@ mod tests {
         // hold a step up.
         let n = 12;
         let columns: Vec<_> = (0..n).map(|v| Some(vec![v % 3])).collect();
-        let supervised = [true, true, true, false];
-        let batches = steps(n, &columns, &supervised, ViewsPerStep::Cover, 4);
+        let batches = steps(n, &columns, 4, ViewsPerStep::Cover, 4);
         // One view of each channel per step until a pass runs short of some channel: with four
         // views of each per pass, every step of a pass fits all three.
         for b in &batches {
@@ -642,12 +631,12 @@ mod tests {
             }
         }
         // `one` keeps single views on the same scan.
-        let one = steps(n, &columns, &supervised, ViewsPerStep::One, 2);
+        let one = steps(n, &columns, 4, ViewsPerStep::One, 2);
         assert!(one.iter().all(|b| b.len() == 1));
         // Unequal channels (7 views of channel 0, 3 of channel 1): three steps of a pass pair
         // the channels, the other four fit channel 0 alone.
         let columns: Vec<_> = (0..10).map(|v| Some(vec![usize::from(v >= 7)])).collect();
-        let batches = steps(10, &columns, &[true, true], ViewsPerStep::Cover, 2);
+        let batches = steps(10, &columns, 2, ViewsPerStep::Cover, 2);
         assert_eq!(batches.len(), 2 * 7);
         let pairs = batches.iter().filter(|b| b.len() == 2).count();
         assert_eq!(pairs, 2 * 3);
