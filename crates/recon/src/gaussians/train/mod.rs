@@ -10,6 +10,7 @@
 pub mod checkpoints;
 pub mod data;
 pub mod densify;
+mod draw;
 pub mod evaluator;
 pub mod head;
 pub mod loss;
