@@ -1,6 +1,7 @@
 //! The import config (`prism import <import.yaml>`): where the measured images are, what they
 //! are, the scanner geometry and the view selection. See `docs/import.md` for the format.
 
+use super::curved::Rebinning;
 use crate::geometry::{Beam, Detector, Geometry, TigreGeometry, ViewVectors, VolumeGrid};
 use crate::scene::SpectralCoordinate;
 use crate::{Error, Result};
@@ -49,6 +50,12 @@ pub struct ImportConfig {
     /// before the log; none by default.
     #[serde(default)]
     pub bad_pixels: Option<super::bad_pixels::BadPixelConfig>,
+    /// Set negative line integrals (rays through air whose noise read more than the open beam)
+    /// to zero, after the log and the repairs, in every channel; how many is reported. Off by
+    /// default: clipping keeps only the positive half of the air's noise and biases it upwards.
+    /// Some published pipelines clip (Cueva et al.'s bird data, `configs/real/bird-dtv.yaml`).
+    #[serde(default)]
+    pub clip_negative: bool,
     pub channels: Vec<ChannelSource>,
     #[serde(default)]
     pub select: ViewSelection,
@@ -179,8 +186,8 @@ impl VectorGeometry {
     }
 }
 
-/// A fan beam on a flat detector line, reconstructing one slice: exactly the middle row of a
-/// cone beam, so the scene stores it as a one-row cone beam over a one-voxel-thick volume (every
+/// A fan beam on a flat detector line (or a curved one, rebinned onto it), reconstructing one
+/// slice: exactly the middle row of a cone beam, so the scene stores it as a one-row cone beam over a one-voxel-thick volume (every
 /// ray lies in the plane z = 0, through the voxel centres). The row's height is `pitch` and the
 /// slice is as thick as the row seen at the axis (`pitch · dso / dsd`); neither changes a line
 /// integral.
@@ -203,21 +210,52 @@ pub struct FanGeometry {
     pub dy: f64,
     #[serde(default)]
     pub offset: [f64; 2],
+    /// `flat` (the default): the columns on a straight line. `curved`: on the arc of radius `dsd`
+    /// around the source, equally spaced in fan angle, `pitch` and `offset_u` then being arc
+    /// lengths at `dsd`; the import rebins them onto the flat line the same rays cross
+    /// ([`super::curved`]), so the scene holds a flat detector.
+    #[serde(default)]
+    pub detector: FanDetector,
+}
+
+/// The shape of a fan beam's detector line.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FanDetector {
+    #[default]
+    Flat,
+    /// Equiangular columns on an arc centred on the source (third-generation CT scanners).
+    Curved,
 }
 
 impl FanGeometry {
-    /// The equivalent one-row cone-beam geometry with `angles_rad`.
+    /// How the measured columns become the scene's flat ones: `None` for a flat detector.
+    pub fn rebinning(&self) -> Result<Option<Rebinning>> {
+        match self.detector {
+            FanDetector::Flat => Ok(None),
+            FanDetector::Curved => {
+                Rebinning::new(self.dsd, self.cols, self.pitch, self.offset_u).map(Some)
+            }
+        }
+    }
+
+    /// The equivalent one-row cone-beam geometry with `angles_rad` (a curved detector's flat
+    /// line after rebinning).
     pub fn to_geometry(&self, angles_rad: Vec<f64>) -> Result<Geometry> {
+        let (cols, offset_u) = match self.rebinning()? {
+            Some(r) => (r.flat_cols, r.flat_offset_u),
+            None => (self.cols, self.offset_u),
+        };
         let g = Geometry {
             beam: Beam::Cone,
             dso: self.dso,
             dsd: self.dsd,
             detector: Detector {
                 rows: 1,
-                cols: self.cols,
+                cols,
                 pitch_u: self.pitch,
                 pitch_v: self.pitch,
-                offset_u: self.offset_u,
+                offset_u,
                 offset_v: 0.0,
             },
             volume: VolumeGrid {
@@ -293,6 +331,10 @@ pub struct ChannelSource {
     /// This channel's reference recon config, overriding `select.reference` (a regulariser
     /// weight suited to its noise).
     pub reference: Option<PathBuf>,
+    /// Or this channel's reference as a volume made elsewhere (a published reconstruction):
+    /// images `[nz, ny, nx]` on the scene's grid, in Prism's axes (`docs/geometry.md`), μ in
+    /// mm⁻¹. Overrides `select.reference` like `reference`.
+    pub reference_volume: Option<ImageSource>,
 }
 
 /// Images: a file holding a stack (`.npy`, `.tif`/`.tiff`, a `dataset` of an HDF5 or MATLAB
@@ -429,6 +471,15 @@ impl ImportConfig {
                 self.rows_bottom_up,
             )),
             GeometrySource::Vectors(_) => unreachable!("handled above"),
+        }
+    }
+
+    /// How the measured detector columns become the scene's: `Some` for a curved fan detector
+    /// (rebinned onto a flat line), `None` when they are the scene's own.
+    pub fn rebinning(&self) -> Result<Option<Rebinning>> {
+        match &self.geometry {
+            GeometrySource::Fan(f) => f.rebinning().map_err(|e| e.under("geometry.fan")),
+            _ => Ok(None),
         }
     }
 

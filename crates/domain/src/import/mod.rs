@@ -15,6 +15,9 @@
 pub mod axis;
 pub mod bad_pixels;
 pub mod config;
+pub mod curved;
+#[cfg(test)]
+mod curved_tests;
 #[cfg(test)]
 mod detector_tests;
 pub mod hdf5;
@@ -45,6 +48,8 @@ pub struct FullScan {
     pub raised: Vec<usize>,
     /// Per channel: bad detector pixels repaired (`bad_pixels`; 0 for line integrals).
     pub bad_pixels: Vec<usize>,
+    /// Per channel: negative line integrals set to zero (`clip_negative`; 0 without it).
+    pub clipped: Vec<usize>,
 }
 
 /// Read and convert every channel of `config` (paths relative to `base`); `config_text` is kept
@@ -52,7 +57,12 @@ pub struct FullScan {
 pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result<FullScan> {
     let (geometry, bottom_up) = config.scan_geometry(base)?;
     let n_views = geometry.views();
-    let (rows, cols) = (geometry.detector.rows, geometry.detector.cols);
+    // The images' columns as measured; a curved detector's become the scene's flat line.
+    let rebinning = config.rebinning()?;
+    let rows = geometry.detector.rows;
+    let cols = rebinning
+        .as_ref()
+        .map_or(geometry.detector.cols, |r| r.curved_cols);
     if config.channels.is_empty() {
         return Err(Error::invalid(
             "channels",
@@ -82,10 +92,12 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
         .map(|f| mean_image(f, base, "dark", [rows, cols]))
         .transpose()?;
     let m = config.channels.len();
-    let mut projections = Array4::<f32>::zeros((m, n_views, rows, cols));
+    let scene_cols = geometry.detector.cols;
+    let mut projections = Array4::<f32>::zeros((m, n_views, rows, scene_cols));
     let mut availability = Array2::from_elem((n_views, m), false);
     let mut raised = Vec::with_capacity(m);
     let mut bad_counts = Vec::with_capacity(m);
+    let mut clipped = Vec::with_capacity(m);
     let mut channels = Vec::with_capacity(m);
     for (c, src) in config.channels.iter().enumerate() {
         let field = |f: &str| format!("channels[{c}].{f}");
@@ -193,6 +205,14 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
             }
             p
         };
+        clipped.push(if config.clip_negative {
+            clip_negative(&mut p)
+        } else {
+            0
+        });
+        if let Some(r) = &rebinning {
+            p = r.apply(&p);
+        }
         if bottom_up {
             p.invert_axis(Axis(1));
         }
@@ -230,7 +250,50 @@ pub fn assemble(config: &ImportConfig, base: &Path, config_text: &str) -> Result
         scene,
         raised,
         bad_pixels: bad_counts,
+        clipped,
     })
+}
+
+/// A channel's `reference_volume` (`source`, paths relative to `base`; `field` names it in
+/// errors): its images must be `shape` (`[nz, ny, nx]`, the scene's grid) and finite.
+pub fn read_reference_volume(
+    source: &config::ImageSource,
+    field: &str,
+    base: &Path,
+    shape: [usize; 3],
+) -> Result<Array3<f32>> {
+    let path = base.join(&source.path);
+    let v = read_stack(source, base, Some([shape[1], shape[2]])).map_err(|e| e.under(field))?;
+    if v.shape() != shape {
+        return Err(Error::field(
+            &path,
+            field,
+            format!(
+                "{:?} found; the scene's grid is [nz, ny, nx] = {shape:?}",
+                v.shape()
+            ),
+        ));
+    }
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(Error::field(
+            &path,
+            field,
+            format!("value {i} (in [nz, ny, nx] order) is not finite"),
+        ));
+    }
+    Ok(v)
+}
+
+/// Set the negative line integrals of `p` to zero (`clip_negative`); returns how many there were.
+/// Noise makes a ray through air measure slightly more than the open beam; clipping removes the
+/// negative half of that noise, so the air's mean rises above zero.
+pub fn clip_negative(p: &mut Array3<f32>) -> usize {
+    let mut n = 0;
+    for x in p.iter_mut().filter(|x| **x < 0.0) {
+        *x = 0.0;
+        n += 1;
+    }
+    n
 }
 
 /// `−ln((I − D) / (F − D))` per pixel of every image of `counts`, with `I − D` raised to
@@ -301,7 +364,6 @@ fn normalise(
     Ok((counts, raised))
 }
 
-/// A flat or dark field: one image, or the mean of a stack.
 /// The estimated peak memory of importing `config` (image paths relative to `base`), from the
 /// config alone (an angle file is read; no image is): the full scan's projections, one
 /// channel's images as read (at their raw type's size, else assumed ≤ 4 bytes per value) and

@@ -162,6 +162,45 @@ fn partial_channels_are_unavailable_where_they_were_not_measured_and_views_subse
     assert!(e.contains("channels[0].flat"), "{e}");
 }
 
+#[test]
+fn clip_negative_sets_negative_line_integrals_to_zero_and_counts_them() {
+    // Two channels: line integrals with three negative values, and counts brighter than their
+    // flat at one pixel (p = −ln 2 < 0). Kept by default, zero with `clip_negative`.
+    let dir = tempfile::tempdir().unwrap();
+    let mut p = Array3::from_shape_fn((2, 2, 3), |(v, r, c)| 0.1 * (v + r + c) as f32);
+    for (i, x) in [-0.02f32, -1e-6, -0.5].into_iter().enumerate() {
+        p[[i % 2, 1, i]] = x;
+    }
+    ndarray_npy::write_npy(dir.path().join("li.npy"), &p).unwrap();
+    let mut counts = Array3::from_elem((2, 2, 3), 50.0f32);
+    counts[[1, 0, 2]] = 200.0;
+    ndarray_npy::write_npy(dir.path().join("i.npy"), &counts).unwrap();
+    ndarray_npy::write_npy(
+        dir.path().join("f.npy"),
+        &Array2::from_elem((2, 3), 100.0f32),
+    )
+    .unwrap();
+    let text = |extra: &str| {
+        format!(
+            "{BASE}angles: {{count: 2}}\nflat: {{path: f.npy}}\n{extra}channels:\n  \
+             - {{label: a, coordinate: {{kind: tube_voltage, kvp: 80}}, line_integrals: {{path: li.npy}}}}\n  \
+             - {{label: b, coordinate: {{kind: tube_voltage, kvp: 140}}, counts: {{path: i.npy}}}}\n"
+        )
+    };
+    let kept = assemble(&config(&text("")), dir.path(), &text("")).unwrap();
+    assert_eq!(kept.clipped, [0, 0]);
+    let (a, b) = (kept.scene.projections, text("clip_negative: true\n"));
+    assert_eq!(a[[0, 0, 1, 2]], -0.5);
+    assert!((a[[1, 1, 0, 2]] + 2f32.ln()).abs() < 1e-6);
+    let clipped = assemble(&config(&b), dir.path(), &b).unwrap();
+    assert_eq!(clipped.clipped, [3, 1]);
+    let c = &clipped.scene.projections;
+    // Exactly the negative values changed, to zero; every other value is the same.
+    for (x, y) in a.iter().zip(c.iter()) {
+        assert_eq!(*y, if *x < 0.0 { 0.0 } else { *x });
+    }
+}
+
 fn hdf5_fixture() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/hdf5")
 }
@@ -290,7 +329,11 @@ fn hdf5_stacks_come_out_views_rows_columns_in_any_stored_order() {
 /// A fan-beam scan's projections by hand: the source at `dso·(cos θ, sin θ)`, column `c` of the
 /// flat detector line at `u = (c + ½ − cols/2)·pitch + offset_u` along `(−sin θ, cos θ)`,
 /// `dsd` from the source; the chord of each (z-infinite) ellipse from source to detector.
-fn fan_truth(f: &FanGeometry, angles: &[f64], objs: &[crate::testing::Ellipsoid]) -> Array3<f32> {
+pub(super) fn fan_truth(
+    f: &FanGeometry,
+    angles: &[f64],
+    objs: &[crate::testing::Ellipsoid],
+) -> Array3<f32> {
     Array3::from_shape_fn((angles.len(), 1, f.cols), |(v, _, c)| {
         let (s, co) = angles[v].sin_cos();
         let src = [f.dso * co, f.dso * s, 0.0];
@@ -338,6 +381,7 @@ fn fan_beam_is_one_cone_row_through_one_slice_and_projects_its_line_integrals() 
             dx: 32.0 / n as f64,
             dy: 32.0 / n as f64,
             offset: [0.0, 0.0],
+            detector: FanDetector::Flat,
         };
         let g = f.to_geometry(angles.clone()).unwrap();
         assert_eq!((g.detector.rows, g.volume.nz), (1, 1));
@@ -456,6 +500,7 @@ fn fan_vectors_are_the_fan_geometry_they_describe() {
         dx: 1.5,
         dy: 1.5,
         offset: [0.5, 0.0],
+        detector: FanDetector::Flat,
     };
     let angles: Vec<f64> = (0..7).map(|i| 0.3 + i as f64 * 0.9).collect();
     let g = f.to_geometry(angles).unwrap();
