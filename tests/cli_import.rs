@@ -270,6 +270,73 @@ fn a_fan_beam_matlab_sinogram_imports_with_each_channels_reference_method() {
 }
 
 #[test]
+fn a_reference_volume_from_a_file_is_the_channels_reference_exactly() {
+    // A published protocol's own reference: channel `a` reads its [nz, ny, nx] volume from a
+    // file, channel `b` keeps the shared FDK. A file not on the grid names itself and the field;
+    // a channel giving both a recon config and a volume is refused.
+    let dir = tempfile::tempdir().unwrap();
+    let mat = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../crates/domain/tests/fixtures/hdf5/matlab73.mat");
+    let volume = ndarray::Array3::from_shape_fn((1, 6, 6), |(_, y, x)| 0.01 * (6 * y + x) as f32);
+    ndarray_npy::write_npy(dir.path().join("ref.npy"), &volume).unwrap();
+    ndarray_npy::write_npy(
+        dir.path().join("small.npy"),
+        &ndarray::Array3::<f32>::zeros((1, 5, 6)),
+    )
+    .unwrap();
+    std::fs::write(dir.path().join("fdk.yaml"), "method: fdk\n").unwrap();
+    let config = dir.path().join("scan.yaml");
+    let write = |a_reference: &str| {
+        let source = format!(
+            "{{ path: {}, dataset: /CtData/sinogram, axes: \"x:theta\" }}",
+            mat.display()
+        );
+        std::fs::write(
+            &config,
+            format!(
+                "name: fan\ngeometry:\n  fan: {{ dso: 50.0, dsd: 80.0, cols: 4, pitch: 2.0, nx: 6, ny: 6, dx: 1.5, dy: 1.5 }}\n\
+                 angles: {{ count: 3 }}\nchannels:\n\
+                 \x20 - {{ label: a, coordinate: {{ kind: tube_voltage, kvp: 50 }}, line_integrals: {source}, {a_reference} }}\n\
+                 \x20 - {{ label: b, coordinate: {{ kind: tube_voltage, kvp: 80 }}, line_integrals: {source} }}\n\
+                 select: {{ views: 2 }}\n"
+            ),
+        )
+        .unwrap();
+    };
+    let out = dir.path().join("scene");
+    write("reference_volume: { path: ref.npy }");
+    let (ok, t) = prism(&["import", path(&config), "-o", path(&out)]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("references: full-view FDK; read from ref.npy"),
+        "{t}"
+    );
+    let scene = Scene::load(&out).unwrap();
+    let refs = scene.references.as_ref().expect("references");
+    assert_eq!(refs.index_axis(ndarray::Axis(0), 0), volume);
+    assert!(
+        refs.index_axis(ndarray::Axis(0), 1)
+            .iter()
+            .any(|&x| x != 0.0)
+    );
+    write("reference_volume: { path: small.npy }");
+    let (ok, t) = prism(&["import", path(&config), "-o", path(&dir.path().join("s2"))]);
+    assert!(!ok, "{t}");
+    assert!(
+        t.contains("small.npy")
+            && t.contains("channels[0].reference_volume")
+            && t.contains("[1, 6, 6]"),
+        "{t}"
+    );
+    write("reference: fdk.yaml, reference_volume: { path: ref.npy }");
+    let (ok, t) = prism(&["import", path(&config), "-o", path(&dir.path().join("s3"))]);
+    assert!(
+        !ok && t.contains("channels[0].reference_volume") && t.contains("not both"),
+        "{t}"
+    );
+}
+
+#[test]
 fn an_off_centre_axis_is_estimated_recorded_and_used_by_the_reference() {
     // A cone-beam scan simulated with its detector shifted by 2.5 columns, imported with a
     // geometry that claims no shift: `prism axis` and `axis: opposing` find the shift to ¼

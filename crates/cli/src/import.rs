@@ -7,7 +7,7 @@ use crate::progress::Bars;
 use anyhow::Context;
 use prism_domain::import::{ImportConfig, footprint};
 use prism_domain::yaml::Overrides;
-use prism_recon::methods::classic::import::{import_scene, reference_configs};
+use prism_recon::methods::classic::import::{Reference, import_scene, reference_configs};
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
@@ -74,9 +74,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     bars.finish();
     let references = match references {
         Some(r) => {
-            let mut from: Vec<&str> = r.iter().map(|(_, f)| f.as_str()).collect();
-            from.dedup();
-            format!("references: full-view {}", from.join(", "))
+            let (mut recon, mut files) = (Vec::new(), Vec::new());
+            for r in &r {
+                match r {
+                    Reference::Recon(..) => recon.push(r.describe()),
+                    Reference::Volume(_) => files.push(r.describe()),
+                }
+            }
+            recon.dedup();
+            let mut parts = Vec::new();
+            if !recon.is_empty() {
+                parts.push(format!("full-view {}", recon.join(", ")));
+            }
+            if !files.is_empty() {
+                parts.push(format!("read from {}", files.join(", ")));
+            }
+            format!("references: {}", parts.join("; "))
         }
         None => "no references".into(),
     };

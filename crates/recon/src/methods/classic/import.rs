@@ -7,32 +7,70 @@
 use super::{ClassicConfig, ClassicMethod, reconstruct_channel};
 use crate::algorithms::axis::estimate_axis;
 use crate::{Error, Result};
-use prism_domain::import::{AxisMethod, ImportConfig, ReferenceKind, assemble};
+use prism_domain::import::config::ImageSource;
+use prism_domain::import::{
+    AxisMethod, ImportConfig, ReferenceKind, assemble, read_reference_volume,
+};
 use prism_domain::observe::{Level, Observer};
 use prism_domain::scene::Scene;
 use std::path::Path;
 
-/// A channel's reference method and where it came from (`FDK`, or its config's path).
-pub type Reference = (ClassicConfig, String);
+/// A channel's reference: reconstructed by a classic method from every view the channel was
+/// measured at (`FDK`, or a recon config's path), or a volume read from a file
+/// (`reference_volume`, a reconstruction made elsewhere).
+#[derive(Clone, Debug)]
+pub enum Reference {
+    /// The method, and where it came from (`FDK`, or its config's path).
+    Recon(ClassicConfig, String),
+    Volume(ImageSource),
+}
 
-/// Each channel's reference (`select.reference`, or the channel's own `reference`), or `None`
-/// when the scene gets no references. Config paths are relative to `base`.
+impl Reference {
+    /// Where it comes from, for progress and errors: the method or the volume's file.
+    pub fn describe(&self) -> String {
+        match self {
+            Reference::Recon(_, from) => from.clone(),
+            Reference::Volume(source) => source.path.display().to_string(),
+        }
+    }
+}
+
+/// Each channel's reference (`select.reference`, or the channel's own `reference` or
+/// `reference_volume`), or `None` when the scene gets no references. Config paths are relative to
+/// `base`.
 pub fn reference_configs(config: &ImportConfig, base: &Path) -> Result<Option<Vec<Reference>>> {
     let read = |path: &Path| -> Result<Reference> {
         let file = base.join(path);
         let text = std::fs::read_to_string(&file).map_err(|e| prism_domain::Error::io(&file, e))?;
         let c = ClassicConfig::from_yaml(&text, &file)?;
-        Ok((c, path.display().to_string()))
+        Ok(Reference::Recon(c, path.display().to_string()))
     };
+    if let Some(c) = config
+        .channels
+        .iter()
+        .position(|c| c.reference.is_some() && c.reference_volume.is_some())
+    {
+        return Err(Error::invalid(
+            format!("channels[{c}].reference_volume"),
+            "give `reference` (a recon config) or `reference_volume` (a volume file), not both",
+        ));
+    }
     let shared = match &config.select.reference {
         ReferenceKind::None => None,
-        ReferenceKind::Fdk => Some((ClassicConfig::new(ClassicMethod::Fdk), "FDK".to_string())),
+        ReferenceKind::Fdk => Some(Reference::Recon(
+            ClassicConfig::new(ClassicMethod::Fdk),
+            "FDK".to_string(),
+        )),
         ReferenceKind::Recon(path) => Some(read(path)?),
     };
     let Some(shared) = shared else {
-        if let Some(c) = config.channels.iter().position(|c| c.reference.is_some()) {
+        if let Some((c, field)) = config.channels.iter().enumerate().find_map(|(c, ch)| {
+            (ch.reference.is_some().then_some("reference"))
+                .or(ch.reference_volume.is_some().then_some("reference_volume"))
+                .map(|f| (c, f))
+        }) {
             return Err(Error::invalid(
-                format!("channels[{c}].reference"),
+                format!("channels[{c}].{field}"),
                 "given, but select.reference is `none`: a scene has references for every \
                  channel or for none",
             ));
@@ -42,9 +80,10 @@ pub fn reference_configs(config: &ImportConfig, base: &Path) -> Result<Option<Ve
     config
         .channels
         .iter()
-        .map(|c| match &c.reference {
-            Some(path) => read(path),
-            None => Ok(shared.clone()),
+        .map(|c| match (&c.reference, &c.reference_volume) {
+            (Some(path), _) => read(path),
+            (None, Some(v)) => Ok(Reference::Volume(v.clone())),
+            (None, None) => Ok(shared.clone()),
         })
         .collect::<Result<Vec<_>>>()
         .map(Some)
@@ -82,27 +121,30 @@ pub fn import_full(
 ) -> Result<Scene> {
     observer.phase("reading and converting the images", 0);
     let full = assemble(config, base, text)?;
-    for (ch, n) in full.scene.channels.iter().zip(&full.raised) {
-        if *n > 0 {
-            observer.note(
-                Level::Warning,
-                &format!(
-                    "channel `{}`: {n} pixels had dark-corrected counts below min_counts = {} \
-                     and were raised to it",
-                    ch.label, config.min_counts
-                ),
-            );
-        }
-    }
-    for (ch, n) in full.scene.channels.iter().zip(&full.bad_pixels) {
-        if *n > 0 {
-            observer.note(
-                Level::Info,
-                &format!(
-                    "channel `{}`: {n} bad detector pixels repaired in every image",
-                    ch.label
-                ),
-            );
+    // Per channel, what the conversion changed: pixels raised to `min_counts` (a warning: the
+    // counts were starved), negative line integrals clipped, bad pixels repaired.
+    let min_counts = format!(
+        "pixels had dark-corrected counts below min_counts = {} and were raised to it",
+        config.min_counts
+    );
+    let tallies = [
+        (&full.raised, Level::Warning, min_counts.as_str()),
+        (
+            &full.clipped,
+            Level::Info,
+            "negative line integrals set to zero (clip_negative)",
+        ),
+        (
+            &full.bad_pixels,
+            Level::Info,
+            "bad detector pixels repaired in every image",
+        ),
+    ];
+    for (counts, level, what) in tallies {
+        for (ch, n) in full.scene.channels.iter().zip(counts) {
+            if *n > 0 {
+                observer.note(level, &format!("channel `{}`: {n} {what}", ch.label));
+            }
         }
     }
     let mut scene = full.scene;
@@ -118,21 +160,33 @@ pub fn import_full(
     let n = scene.n_views();
     if let Some(references) = references {
         let mut volumes = Vec::with_capacity(references.len());
-        for (c, (reference, from)) in references.iter().enumerate() {
-            let views: Vec<usize> = (0..n).filter(|&v| scene.availability[[v, c]]).collect();
+        for (c, reference) in references.iter().enumerate() {
             let label = &scene.channels[c].label;
-            observer.phase(
-                &format!("reference of `{label}`: {from}, {} views", views.len()),
-                reference.resolved_iterations() as u64,
-            );
-            let v = reconstruct_channel(
-                reference,
-                &scene.geometry,
-                scene.channel_projections(c),
-                &views,
-                &mut |i| observer.progress(i as u64, label),
-            )
-            .map_err(|e| e.under(&format!("reference of channel `{label}` ({from})")))?;
+            let from = reference.describe();
+            let v = match reference {
+                Reference::Volume(source) => {
+                    observer.phase(&format!("reference of `{label}`: read from {from}"), 0);
+                    let field = format!("channels[{c}].reference_volume");
+                    let shape = scene.geometry.volume.shape_zyx();
+                    read_reference_volume(source, &field, base, shape)?
+                }
+                Reference::Recon(method, _) => {
+                    let views: Vec<usize> =
+                        (0..n).filter(|&v| scene.availability[[v, c]]).collect();
+                    observer.phase(
+                        &format!("reference of `{label}`: {from}, {} views", views.len()),
+                        method.resolved_iterations() as u64,
+                    );
+                    reconstruct_channel(
+                        method,
+                        &scene.geometry,
+                        scene.channel_projections(c),
+                        &views,
+                        &mut |i| observer.progress(i as u64, label),
+                    )
+                    .map_err(|e| e.under(&format!("reference of channel `{label}` ({from})")))?
+                }
+            };
             volumes.push(v);
         }
         scene = scene.with_references(volumes)?;
