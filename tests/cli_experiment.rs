@@ -288,21 +288,22 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("runs/ph3-v13-shipped-s0/naf  to run\n"),
         "{t}"
     );
-    // The spectral suite: interleaved scenes at 13 angles per channel (39 for 3 channels, 52 for
-    // 4 tube voltages), their every-channel reference at the same angles, and two low-dose levels
-    // (with the Gaussian methods' noise-aware data term beside their own); the joint classic
-    // baseline (TNV) beside SART; 4D-SG with R²-Gaussian's rates and with the basis head in
-    // every study.
+    // The spectral suite: six interleaved scenes at 13 angles per channel (39 for 3 channels, 52
+    // for 4 tube voltages, 104 for the abdomen's 8), their every-channel reference at the same
+    // angles, and two low-dose levels (with the Gaussian methods' noise-aware data term beside
+    // their own); the joint classic baseline (TNV) beside SART; 4D-SG with R²-Gaussian's rates,
+    // and the basis head on the three scenes whose channels it can form.
     let spectral = repo.join("configs/suites/spectral.yaml");
     let (ok, t) = prism(&["experiment", path(&spectral), "-o", path(&out), "--dry-run"]);
     assert!(ok, "{t}");
     assert!(
-        t.contains("10 scene cells:")
+        t.contains("16 scene cells:")
             && t.contains("scenes/chest-v39-interleaved-s0  (64³, 39 views, 3 channels)")
+            && t.contains("scenes/abdomen-v104-interleaved-s0  (64³, 104 views, 8 channels)")
             && t.contains("scenes/kvp-v52-interleaved-s0  (64³, 52 views, 4 channels)")
             && t.contains("scenes/head-v39-shipped-s0  (64³, 39 views, 3 channels)")
             && t.contains("scenes/pcct-v13-i0-3e3-s0  (64³, 13 views, 4 channels)")
-            && t.contains("59 run cells:")
+            && t.contains("80 run cells:")
             && t.contains("runs/head-v39-interleaved-s0/r2gs  to run\n")
             && t.contains("runs/pcct-v13-i0-1e4-s0/tnv  to run\n")
             && t.contains("runs/pcct-v13-i0-3e3-s0/4dsg-counts  to run\n")
@@ -330,7 +331,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/bird-dtv-v60-shipped-s0  (512×512×1, 60 views, 3 channels)  to run\n      importing needs ~")
             && t.contains("scenes/bird-v120-shipped-s0  (512×512×1, 120 views, 3 channels)")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("46 run cells:")
+            && t.contains("50 run cells:")
             && t.contains("runs/bird-v30-shipped-s0/4dsg  to run\n")
             && t.contains("runs/tooth-v45-shipped-s0/r2gs  to run\n"),
         "{t}"
