@@ -187,10 +187,10 @@ impl VectorGeometry {
 }
 
 /// A fan beam on a flat detector line (or a curved one, rebinned onto it), reconstructing one
-/// slice: exactly the middle row of a cone beam, so the scene stores it as a one-row cone beam over a one-voxel-thick volume (every
-/// ray lies in the plane z = 0, through the voxel centres). The row's height is `pitch` and the
-/// slice is as thick as the row seen at the axis (`pitch · dso / dsd`); neither changes a line
-/// integral.
+/// slice: exactly the middle row of a cone beam, so the scene stores it as a one-row cone beam
+/// over a one-voxel-thick volume (every ray lies in the plane z = 0, through the voxel centres).
+/// The row's height is `pitch` and the slice is as thick as the row seen at the axis
+/// (`pitch · dso / dsd`); neither changes a line integral.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FanGeometry {

@@ -33,7 +33,7 @@ pub use config::{ImportConfig, ReferenceKind};
 use crate::geometry::Geometry;
 use crate::indices::IndexFault;
 use crate::memory::{self, Footprint};
-use crate::scene::{Channel, Provenance, Scene, Split, normalise_tau};
+use crate::scene::{Channel, Provenance, Scene, Split, check_finite, check_shape, normalise_tau};
 use crate::{Error, Result};
 use images::read_stack;
 use ndarray::{Array2, Array3, Array4, ArrayView2, Axis, s};
@@ -262,25 +262,14 @@ pub fn read_reference_volume(
     base: &Path,
     shape: [usize; 3],
 ) -> Result<Array3<f32>> {
-    let path = base.join(&source.path);
     let v = read_stack(source, base, Some([shape[1], shape[2]])).map_err(|e| e.under(field))?;
-    if v.shape() != shape {
-        return Err(Error::field(
-            &path,
-            field,
-            format!(
-                "{:?} found; the scene's grid is [nz, ny, nx] = {shape:?}",
-                v.shape()
-            ),
-        ));
-    }
-    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-        return Err(Error::field(
-            &path,
-            field,
-            format!("value {i} (in [nz, ny, nx] order) is not finite"),
-        ));
-    }
+    check_shape(field, v.shape(), &shape)
+        .and_then(|()| {
+            check_finite(field, v.view().into_dyn(), |_| {
+                "a voxel of the reference, index [z][y][x]".into()
+            })
+        })
+        .map_err(|e| e.in_file(base.join(&source.path)))?;
     Ok(v)
 }
 

@@ -554,7 +554,7 @@ fn check_metadata(geometry: &Geometry, channels: &[Channel], split: &Split) -> R
 }
 
 /// Shape check; the message gives expected and found shapes.
-fn check_shape(field: &str, found: &[usize], expected: &[usize]) -> Result<()> {
+pub(crate) fn check_shape(field: &str, found: &[usize], expected: &[usize]) -> Result<()> {
     if found == expected {
         Ok(())
     } else {
@@ -567,7 +567,7 @@ fn check_shape(field: &str, found: &[usize], expected: &[usize]) -> Result<()> {
 
 /// Finiteness check; the error names the first bad index (C order) as `field[i][j]…` and
 /// `what(index)` describes it (e.g. the channel).
-fn check_finite(
+pub(crate) fn check_finite(
     field: &str,
     a: ndarray::ArrayViewD<'_, f32>,
     what: impl Fn(&[usize]) -> String,

@@ -77,8 +77,9 @@ impl Default for GeometryConfig {
 pub enum ViewsPerStep {
     /// After the first view, the next view of the pass that measures a channel not yet fitted,
     /// until every channel is or the pass has none left: one view where each view measures every
-    /// channel (a shared acquisition, or one channel), one of each channel on an interleaved scan. Every step then fits every channel, so the iteration
-    /// count means the same on both kinds of scan.
+    /// channel (a shared acquisition, or one channel), one of each channel on an interleaved scan.
+    /// Every step then fits every channel, so the iteration count means the same on both kinds
+    /// of scan.
     #[default]
     Cover,
     /// One view per step, whatever it measures (R²-Gaussian upstream): on an interleaved scan

@@ -9,9 +9,9 @@ use rand_chacha::ChaCha8Rng;
 /// `order` (views are taken from its end; a new pass of all `n`, shuffled with `rng`, when it is
 /// empty): the next view, and with `cover` then, while some of the `total` columns has not been
 /// drawn, the next view of the pass that measures one of them (`columns(i)`: view i's columns,
-/// None for all), until none is left in the pass (a column no view measures holds no step up). The views passed over stay in the
-/// pass for the next steps, so a pass still holds every view once; on an interleaved scan of C
-/// channels a step holds one view of each.
+/// None for all), until none is left in the pass (a column no view measures holds no step up).
+/// The views passed over stay in the pass for the next steps, so a pass still holds every view
+/// once; on an interleaved scan of C channels a step holds one view of each.
 pub(super) fn draw_views<'c>(
     order: &mut Vec<usize>,
     rng: &mut ChaCha8Rng,
