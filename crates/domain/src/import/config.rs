@@ -1,7 +1,8 @@
 //! The import config (`prism import <import.yaml>`): where the measured images are, what they
 //! are, the scanner geometry and the view selection. See `docs/import.md` for the format.
 
-use super::curved::Rebinning;
+use super::fan::Rebinning;
+pub use super::fan::{FanDetector, FanGeometry};
 use crate::geometry::{Beam, Detector, Geometry, TigreGeometry, ViewVectors, VolumeGrid};
 use crate::scene::SpectralCoordinate;
 use crate::{Error, Result};
@@ -183,108 +184,6 @@ impl VectorGeometry {
             vectors,
             angles,
         )
-    }
-}
-
-/// A fan beam on a flat detector line (or a curved one, rebinned onto it), reconstructing one
-/// slice: exactly the middle row of a cone beam, so the scene stores it as a one-row cone beam
-/// over a one-voxel-thick volume (every ray lies in the plane z = 0, through the voxel centres).
-/// The row's height is `pitch` and the slice is as thick as the row seen at the axis
-/// (`pitch · dso / dsd`); neither changes a line integral.
-#[derive(Clone, Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FanGeometry {
-    /// Source → rotation axis and source → detector distances, mm.
-    pub dso: f64,
-    pub dsd: f64,
-    /// Detector columns, their pitch (mm) and the shift of the detector centre along u (mm): a
-    /// rotation axis projecting `k` columns right of the centre is `offset_u = k·pitch`.
-    pub cols: usize,
-    pub pitch: f64,
-    #[serde(default)]
-    pub offset_u: f64,
-    /// The slice: voxel counts and sizes (mm) along x and y, its centre (x, y) in mm.
-    pub nx: usize,
-    pub ny: usize,
-    pub dx: f64,
-    pub dy: f64,
-    #[serde(default)]
-    pub offset: [f64; 2],
-    /// `flat` (the default): the columns on a straight line. `curved`: on the arc of radius `dsd`
-    /// around the source, equally spaced in fan angle, `pitch` and `offset_u` then being arc
-    /// lengths at `dsd`; the import rebins them onto the flat line the same rays cross
-    /// ([`super::curved`]), so the scene holds a flat detector.
-    #[serde(default)]
-    pub detector: FanDetector,
-}
-
-/// The shape of a fan beam's detector line.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum FanDetector {
-    #[default]
-    Flat,
-    /// Equiangular columns on an arc centred on the source (third-generation CT scanners).
-    Curved,
-}
-
-impl FanGeometry {
-    /// How the measured columns become the scene's flat ones: `None` for a flat detector.
-    pub fn rebinning(&self) -> Result<Option<Rebinning>> {
-        match self.detector {
-            FanDetector::Flat => Ok(None),
-            FanDetector::Curved => {
-                Rebinning::new(self.dsd, self.cols, self.pitch, self.offset_u).map(Some)
-            }
-        }
-    }
-
-    /// The equivalent one-row cone-beam geometry with `angles_rad` (a curved detector's flat
-    /// line after rebinning).
-    pub fn to_geometry(&self, angles_rad: Vec<f64>) -> Result<Geometry> {
-        let (cols, offset_u) = match self.rebinning()? {
-            Some(r) => (r.flat_cols, r.flat_offset_u),
-            None => (self.cols, self.offset_u),
-        };
-        let g = Geometry {
-            beam: Beam::Cone,
-            dso: self.dso,
-            dsd: self.dsd,
-            detector: Detector {
-                rows: 1,
-                cols,
-                pitch_u: self.pitch,
-                pitch_v: self.pitch,
-                offset_u,
-                offset_v: 0.0,
-            },
-            volume: VolumeGrid {
-                nx: self.nx,
-                ny: self.ny,
-                nz: 1,
-                dx: self.dx,
-                dy: self.dy,
-                dz: self.pitch * self.dso / self.dsd,
-                offset: [self.offset[0], self.offset[1], 0.0],
-            },
-            angles_rad,
-            vectors: None,
-        };
-        // Errors name the fan's own fields, not the cone fields they became.
-        g.validate().map_err(|e| match e {
-            Error::Invalid { field, message } => {
-                let name = field
-                    .trim_start_matches("detector.")
-                    .trim_start_matches("volume.");
-                let name = match name {
-                    "pitch_u" | "pitch_v" | "dz" => "pitch",
-                    other => other,
-                };
-                Error::invalid(name, message)
-            }
-            other => other,
-        })?;
-        Ok(g)
     }
 }
 

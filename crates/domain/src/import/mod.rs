@@ -15,11 +15,12 @@
 pub mod axis;
 pub mod bad_pixels;
 pub mod config;
-pub mod curved;
+mod convert;
 #[cfg(test)]
 mod curved_tests;
 #[cfg(test)]
 mod detector_tests;
+pub mod fan;
 pub mod hdf5;
 pub mod images;
 pub mod rings;
@@ -29,6 +30,7 @@ mod tests;
 pub use crate::scene::{AxisEstimate, AxisMethod};
 pub use axis::AxisConfig;
 pub use config::{ImportConfig, ReferenceKind};
+pub use convert::{clip_negative, line_integrals, transmission};
 
 use crate::geometry::Geometry;
 use crate::indices::IndexFault;
@@ -36,7 +38,7 @@ use crate::memory::{self, Footprint};
 use crate::scene::{Channel, Provenance, Scene, Split, check_finite, check_shape, normalise_tau};
 use crate::{Error, Result};
 use images::read_stack;
-use ndarray::{Array2, Array3, Array4, ArrayView2, Axis, s};
+use ndarray::{Array2, Array3, Array4, Axis, s};
 use std::path::Path;
 
 /// The whole scan as line integrals, before view selection.
@@ -271,86 +273,6 @@ pub fn read_reference_volume(
         })
         .map_err(|e| e.in_file(base.join(&source.path)))?;
     Ok(v)
-}
-
-/// Set the negative line integrals of `p` to zero (`clip_negative`); returns how many there were.
-/// Noise makes a ray through air measure slightly more than the open beam; clipping removes the
-/// negative half of that noise, so the air's mean rises above zero.
-pub fn clip_negative(p: &mut Array3<f32>) -> usize {
-    let mut n = 0;
-    for x in p.iter_mut().filter(|x| **x < 0.0) {
-        *x = 0.0;
-        n += 1;
-    }
-    n
-}
-
-/// `−ln((I − D) / (F − D))` per pixel of every image of `counts`, with `I − D` raised to
-/// `min_counts` where smaller; returns the line integrals and how many pixels were raised.
-/// `F − D ≤ 0` anywhere is an error naming the pixel.
-pub fn line_integrals(
-    counts: Array3<f32>,
-    flat: ArrayView2<f32>,
-    dark: ArrayView2<f32>,
-    min_counts: f64,
-) -> Result<(Array3<f32>, usize)> {
-    normalise(counts, flat, dark, min_counts, None, |t| -t.ln() as f32)
-}
-
-/// The transmission `(I − D) / (F − D)` of every image of `counts`: [`line_integrals`] before
-/// the log. Pixels marked in `skip` (bad pixels, to be repaired) are set to 1 and not checked.
-pub fn transmission(
-    counts: Array3<f32>,
-    flat: ArrayView2<f32>,
-    dark: ArrayView2<f32>,
-    min_counts: f64,
-    skip: Option<&ndarray::Array2<bool>>,
-) -> Result<(Array3<f32>, usize)> {
-    normalise(counts, flat, dark, min_counts, skip, |t| t as f32)
-}
-
-/// `out((I − D) / (F − D))` per pixel (in f64), `I − D` raised to `min_counts`; `out(1)` at the
-/// pixels marked in `skip`.
-fn normalise(
-    mut counts: Array3<f32>,
-    flat: ArrayView2<f32>,
-    dark: ArrayView2<f32>,
-    min_counts: f64,
-    skip: Option<&ndarray::Array2<bool>>,
-    out: impl Fn(f64) -> f32,
-) -> Result<(Array3<f32>, usize)> {
-    let beam = &flat - &dark;
-    let skipped = |p: (usize, usize)| skip.is_some_and(|s| s[p]);
-    if let Some(((r, c), v)) = beam
-        .indexed_iter()
-        .find(|(p, v)| !skipped(*p) && v.partial_cmp(&&0.0) != Some(std::cmp::Ordering::Greater))
-    {
-        return Err(Error::invalid(
-            format!("flat[{r}][{c}]"),
-            format!("the flat field does not exceed the dark field there (F − D = {v})"),
-        ));
-    }
-    let mut raised = 0;
-    for mut image in counts.outer_iter_mut() {
-        ndarray::Zip::indexed(&mut image)
-            .and(&dark)
-            .and(&beam)
-            .for_each(|p, v, &d, &b| {
-                if skipped(p) {
-                    *v = out(1.0);
-                    return;
-                }
-                let net = *v as f64 - d as f64;
-                let net = if net < min_counts {
-                    raised += 1;
-                    min_counts
-                } else {
-                    net
-                };
-                *v = out(net / b as f64);
-            });
-    }
-    Ok((counts, raised))
 }
 
 /// The estimated peak memory of importing `config` (image paths relative to `base`), from the
