@@ -11,8 +11,8 @@
 #
 # PACK (default target/gpu-bench) holds stripped binaries (prism and the render bench in release,
 # the four library test binaries holding the wgpu parity tests as CI builds them), each also as
-# .gz (`run` unpacks binaries that arrived only gzipped), a Vulkan loader (libvulkan.so.1) and
-# MANIFEST.txt.
+# .gz (`run` unpacks binaries that arrived only gzipped), a Vulkan loader (libvulkan.so.1), glvnd's
+# libGLdispatch.so.0 (which the NVIDIA driver's Vulkan ICD needs) and MANIFEST.txt.
 # `run` needs the repository's configs/ and data/ (the chest scene is simulated from data/ct/) and
 # writes OUT (default runs/gpu-bench): one log per step, the run directories, summary.txt (appended
 # to, one line per step with its exit status and wall time).
@@ -67,6 +67,12 @@ package() {
     loader=$(ldconfig -p 2>/dev/null | sed -n 's/.*libvulkan\.so\.1 .*=> \(.*\)/\1/p' | head -n 1)
     [ -n "$loader" ] || die "package: no libvulkan.so.1 here (apt-get install -y libvulkan1)"
     cp -L "$loader" "$pack/lib/libvulkan.so.1"
+    # The NVIDIA driver's Vulkan ICD (libGLX_nvidia.so.0) links against glvnd's dispatch library;
+    # where the GPU machine lacks it the loader reports "Could not get 'vkCreateInstance' via
+    # 'vk_icdGetInstanceProcAddr'" and "Found no drivers" (seen on an H200 image without libglvnd0).
+    dispatch=$(ldconfig -p 2>/dev/null | sed -n 's/.*libGLdispatch\.so\.0 .*=> \(.*\)/\1/p' | head -n 1)
+    [ -n "$dispatch" ] || die "package: no libGLdispatch.so.0 here (apt-get install -y libglvnd0)"
+    cp -L "$dispatch" "$pack/lib/libGLdispatch.so.0"
     if command -v strip >/dev/null; then
         strip --strip-all "$pack"/bin/* "$pack"/tests/*
     fi
