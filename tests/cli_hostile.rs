@@ -18,6 +18,7 @@
 //! | | a resume file beyond the run's end | `a_resume_file_beyond_the_runs_end_is_refused` (every field: `prism_recon`'s `resume_fields_out_of_range_are_refused`) |
 //! | | `report` columns by method only | `report_columns_tell_runs_of_one_method_apart` |
 //! | | a scoring error after the reconstruction | `an_evaluation_that_cannot_run_fails_before_reconstructing` |
+//! | crash on the machine | a Vulkan driver that does not load, with `--device wgpu` | `a_gpu_without_a_loadable_driver_is_an_error_not_a_panic` |
 //! | data loss | (`tests/cli_outputs.rs`) | |
 
 mod common;
@@ -474,4 +475,34 @@ fn a_resume_file_beyond_the_runs_end_is_refused() {
         "{t}"
     );
     assert!(!out.exists(), "nothing published");
+}
+
+/// A wgpu build on a machine whose Vulkan loader finds no driver (seen on a GPU machine lacking
+/// glvnd, which the NVIDIA ICD links against): the runtime panicked on its own thread and then the
+/// main one. Now the device is probed once and the run ends in an error naming the cause and the
+/// way out. The Vulkan loader and glvnd's EGL (wgpu's fallback) are pointed at a driver file that
+/// does not exist, so no adapter comes up.
+#[cfg(feature = "wgpu")]
+#[test]
+fn a_gpu_without_a_loadable_driver_is_an_error_not_a_panic() {
+    let (dir, scene) = simulated("no-driver", 8, 12, 16, &[50]);
+    let rc = dir.path().join("r2gs.yaml");
+    std::fs::write(&rc, "method: r2gs\niterations: 2\ninit: { n_points: 50 }\n").unwrap();
+    let missing = dir.path().join("no-such-icd.json");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_prism"))
+        .args(["recon", path(&rc), "-s", path(&scene), "-o"])
+        .arg(dir.path().join("run"))
+        .args(["--device", "wgpu"])
+        .env("VK_DRIVER_FILES", &missing)
+        .env("VK_ICD_FILENAMES", &missing)
+        .env("__EGL_VENDOR_LIBRARY_FILENAMES", &missing)
+        .output()
+        .expect("prism runs");
+    let t = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{t}");
+    assert!(
+        t.contains("no usable GPU adapter") && t.contains("--device cpu"),
+        "{t}"
+    );
+    assert!(!t.contains("panicked"), "{t}");
 }
