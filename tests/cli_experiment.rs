@@ -331,7 +331,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/bird-dtv-v60-shipped-s0  (512×512×1, 60 views, 3 channels)  to run\n      importing needs ~")
             && t.contains("scenes/bird-v120-shipped-s0  (512×512×1, 120 views, 3 channels)")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("50 run cells:")
+            && t.contains("51 run cells:")
             && t.contains("runs/bird-v30-shipped-s0/4dsg  to run\n")
             && t.contains("runs/tooth-v45-shipped-s0/r2gs  to run\n"),
         "{t}"
