@@ -15,7 +15,7 @@
 # compressed), a Vulkan loader (libvulkan.so.1), glvnd's libGLdispatch.so.0 (which the NVIDIA
 # driver's Vulkan ICD needs) and MANIFEST.txt.
 #
-# Sizes (2026-11): prism 75 MB stripped, 13 MB as .xz; the render bench 8 MB, the test binaries
+# Sizes (2026-11, xz -6): prism 75 MB stripped, 13 MB as .xz; the render bench 8 MB, the test binaries
 # 10-16 MB each as .xz (gzip: a third larger). Where a transfer is limited (the GPU sessions' tool
 # carries 64 MiB with the 25 MB repository), carry lib/, the compressed prism and render bench and
 # the compressed tests that fit (tests/prism_render first: the kernels' parity); `run` skips the
@@ -91,7 +91,7 @@ package() {
     # unpacks what is missing.
     for f in "$pack"/bin/* "$pack"/tests/*; do
         if command -v xz >/dev/null; then
-            xz -9e -T0 -c "$f" >"$f.xz.part" && mv "$f.xz.part" "$f.xz"
+            xz -6 -T0 -c "$f" >"$f.xz.part" && mv "$f.xz.part" "$f.xz"
         else
             gzip -9 -c "$f" >"$f.gz.part" && mv "$f.gz.part" "$f.gz"
         fi
