@@ -16,8 +16,8 @@
 # driver's Vulkan ICD needs) and MANIFEST.txt.
 #
 # Sizes (2026-11, xz -6): prism 75 MB stripped, 13 MB as .xz; the render bench 8 MB, the test binaries
-# 10-16 MB each as .xz (gzip: a third larger). Where a transfer is limited (the GPU sessions' tool
-# carries 64 MiB with the 25 MB repository), carry lib/, the compressed prism and render bench and
+# 10-16 MB each as .xz (gzip: a third larger). Where a transfer is limited (64 MiB, say, for the
+# pack and the 25 MB repository together), carry lib/, the compressed prism and render bench and
 # the compressed tests that fit (tests/prism_render first: the kernels' parity); `run` skips the
 # test binaries that did not come and says so in summary.txt.
 # `run` needs the repository's configs/ and data/ (the chest scene is simulated from data/ct/) and
