@@ -17,7 +17,7 @@ pub enum DeviceChoice {
 }
 
 impl DeviceChoice {
-    /// The Burn device, or an error if this build lacks the backend.
+    /// The Burn device, or an error if this build lacks the backend or (wgpu) no adapter comes up.
     pub fn device(self) -> Result<burn::tensor::Device> {
         match self {
             DeviceChoice::Cpu => Ok(cpu_device()),
