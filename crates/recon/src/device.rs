@@ -38,45 +38,21 @@ impl DeviceChoice {
 
 /// One value uploaded to the wgpu device and read back, once per process, so that a machine
 /// without a usable adapter (no GPU, or a Vulkan driver whose ICD does not load) is an error saying
-/// so rather than a panic inside the runtime. CubeCL acquires the adapter on a thread of its own and
-/// panics there; the read then fails here. The panics' messages are kept for the error, not printed.
+/// so rather than a panic inside the runtime (CubeCL acquires the adapter on a thread of its own
+/// and panics there; the read then fails here). The runtime's message goes into the error.
 #[cfg(feature = "wgpu")]
 fn wgpu_probe(device: &Device) -> Result<()> {
-    use std::sync::{Arc, Mutex, OnceLock};
+    use std::sync::OnceLock;
     static PROBE: OnceLock<std::result::Result<(), String>> = OnceLock::new();
     let outcome = PROBE.get_or_init(|| {
-        let messages = Arc::new(Mutex::new(Vec::<String>::new()));
-        let kept = Arc::clone(&messages);
-        let previous = std::panic::take_hook();
-        std::panic::set_hook(Box::new(move |info| {
-            let text = info
-                .payload()
-                .downcast_ref::<String>()
-                .cloned()
-                .or_else(|| info.payload().downcast_ref::<&str>().map(|s| s.to_string()))
-                .unwrap_or_default();
-            kept.lock().map(|mut m| m.push(text)).ok();
-        }));
-        let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            host_values(&Tensor::<1>::from_data(
-                TensorData::new(vec![1.0f32], [1]),
-                device,
-            ))
-        }));
-        std::panic::set_hook(previous);
-        match read {
+        let one = || Tensor::<1>::from_data(TensorData::new(vec![1.0f32], [1]), device);
+        match crate::error::catch_panics(|| host_values(&one())) {
             Ok(v) if v == [1.0] => Ok(()),
             Ok(v) => Err(format!("a value written as 1 read back as {v:?}")),
-            Err(_) => {
-                // The runtime thread's panic comes first; the main thread's (a closed
-                // channel) adds nothing.
-                let m = messages
-                    .lock()
-                    .ok()
-                    .and_then(|m| m.first().cloned())
-                    .unwrap_or_default();
-                Err(format!("no usable GPU adapter ({m})"))
-            }
+            Err(why) => Err(format!(
+                "no usable GPU adapter ({})",
+                why.unwrap_or_default()
+            )),
         }
     });
     outcome.clone().map_err(|cause| {

@@ -1,5 +1,6 @@
 //! The reconstruction crate's error: the domain's errors (a file, a field), the render ops' and
-//! the curve model's, and a training stage that diverged.
+//! the curve model's, and a training stage that diverged; and panics inside third-party code
+//! caught as values ([`catch_panics`]).
 
 use prism_domain::error::Error as DomainError;
 use std::path::PathBuf;
@@ -80,5 +81,57 @@ impl Error {
 impl From<prism_field::FieldError> for Error {
     fn from(e: prism_field::FieldError) -> Self {
         Error::invalid(e.field, e.message)
+    }
+}
+
+/// Run `f` with panics caught and their default report silenced (Burn's record readers assert on
+/// some malformed records; the GPU runtime panics when it finds no adapter). On a panic, the
+/// message of the first panic raised meanwhile on any thread: a runtime's worker thread may panic
+/// first and make the caller's call fail in turn, with a message that says less. `None` when that
+/// panic carried no text.
+pub(crate) fn catch_panics<T>(f: impl FnOnce() -> T) -> std::result::Result<T, Option<String>> {
+    use std::sync::{Arc, Mutex};
+    let first = Arc::new(Mutex::new(None::<String>));
+    let kept = Arc::clone(&first);
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let text = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned());
+        if let Ok(mut first) = kept.lock()
+            && first.is_none()
+        {
+            *first = text;
+        }
+    }));
+    let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+    std::panic::set_hook(hook);
+    out.map_err(|_| first.lock().ok().and_then(|m| m.clone()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::catch_panics;
+
+    #[test]
+    fn catch_panics_returns_the_value_or_the_first_panics_message() {
+        assert_eq!(catch_panics(|| 7), Ok(7));
+        let n = 3;
+        assert_eq!(
+            catch_panics(|| -> i32 { panic!("bad record {n}") }),
+            Err(Some("bad record 3".into()))
+        );
+        assert_eq!(
+            catch_panics(|| -> i32 { panic!("static text") }),
+            Err(Some("static text".into()))
+        );
+        // A worker thread panics first; the caller fails in turn with a message that says less.
+        let caught = catch_panics(|| {
+            let worker = std::thread::spawn(|| -> i32 { panic!("no adapter found") });
+            worker.join().expect("the worker's result")
+        });
+        assert_eq!(caught, Err(Some("no adapter found".into())));
     }
 }

@@ -148,16 +148,8 @@ impl NetState {
 /// an optimiser tensor without a parameter id) turned into an error naming `field` of `file`.
 /// The panic's default report is silenced meanwhile: the error says it.
 fn without_panics<T>(file: &Path, field: &str, read: impl FnOnce() -> Result<T>) -> Result<T> {
-    let hook = std::panic::take_hook();
-    std::panic::set_hook(Box::new(|_| {}));
-    let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(read));
-    std::panic::set_hook(hook);
-    out.unwrap_or_else(|panic| {
-        let why = panic
-            .downcast_ref::<&str>()
-            .map(|s| s.to_string())
-            .or_else(|| panic.downcast_ref::<String>().cloned())
-            .unwrap_or_else(|| "malformed".into());
+    crate::error::catch_panics(read).unwrap_or_else(|why| {
+        let why = why.unwrap_or_else(|| "malformed".into());
         Err(Error::field(
             file,
             field,
