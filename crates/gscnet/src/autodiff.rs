@@ -39,6 +39,17 @@ impl<B: SpectralOps> Backward<B, 3> for ConvBackward {
     }
 }
 
+#[derive(Debug)]
+struct SiluBackward;
+
+impl<B: SpectralOps> Backward<B, 1> for SiluBackward {
+    type State = FloatTensor<B>;
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _ck: &mut Checkpointer) {
+        backpropagate::<B, _, 1>(ops, grads, |x, grad| [B::silu_backward(x, grad)]);
+    }
+}
+
 impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
     fn selective_scan(inputs: ScanTensors<Self>, softplus: bool) -> FloatTensor<Self> {
         record::<B, C, _, _, 6>(
@@ -83,5 +94,15 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         let (g0, g1, g2) = B::spectral_conv_silu_backward(u, w, bias, grad);
         let [g0, g1, g2] = lift([g0, g1, g2]);
         (g0, g1, g2)
+    }
+
+    fn silu(x: FloatTensor<Self>) -> FloatTensor<Self> {
+        record::<B, C, _, _, 1>(SiluBackward, [x], |[x]| x, |[x]| B::silu(x))
+    }
+
+    fn silu_backward(x: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self> {
+        let [x, grad] = inner([x, grad]);
+        let [g] = lift([B::silu_backward(x, grad)]);
+        g
     }
 }

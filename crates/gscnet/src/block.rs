@@ -14,11 +14,11 @@ use crate::init::SeedStream;
 use burn::module::Module;
 use burn::nn::conv::Conv1d;
 use burn::nn::{LayerNorm, LayerNormConfig, Linear};
-use burn::tensor::activation::silu;
 use burn::tensor::{Device, Tensor};
 
 use crate::conv::spectral_conv_silu;
 use crate::init::{self, apply_rows};
+use crate::ops::silu;
 use crate::ssm::SelectiveSsm;
 
 /// A gated spectral SSM block with residual connection and post-normalisation.

@@ -196,4 +196,22 @@ mod tests {
             );
         }
     }
+
+    /// The fused SiLU against Burn's composed one (a sigmoid and a product) and its gradient,
+    /// on a 3-D tensor over [−12, 12] (both tails of σ).
+    #[test]
+    fn composed_silu_matches_the_fused_kernel_and_its_gradient() {
+        let x = tensor([6, 3, 7], 21, -12.0, 12.0);
+        let g = tensor([6, 3, 7], 22, -1.0, 1.0);
+        let fused = crate::ops::silu(x.clone());
+        let composed = activation::silu(x.clone());
+        close("silu", vec_of(composed.clone()), vec_of(fused.clone()));
+        let gf = (fused * g.clone()).sum().backward();
+        let gc = (composed * g).sum().backward();
+        close(
+            "x",
+            vec_of(x.grad(&gc).unwrap()),
+            vec_of(x.grad(&gf).unwrap()),
+        );
+    }
 }

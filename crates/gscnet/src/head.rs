@@ -17,10 +17,10 @@
 use crate::init::SeedStream;
 use burn::module::{Module, Param};
 use burn::nn::Linear;
-use burn::tensor::activation::silu;
 use burn::tensor::{Device, Tensor};
 
 use crate::init;
+use crate::ops::silu;
 
 /// Scale of the head's output layers relative to the default initialisation.
 pub(crate) const OUTPUT_GAIN: f32 = 1e-2;

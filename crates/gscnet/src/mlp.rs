@@ -6,12 +6,12 @@
 use crate::init::SeedStream;
 use burn::module::Module;
 use burn::nn::Linear;
-use burn::tensor::activation::silu;
 use burn::tensor::{Device, Tensor};
 
 use crate::config::CurveModelConfig;
 use crate::head::OUTPUT_GAIN;
 use crate::init;
+use crate::ops::silu;
 use crate::tokenizer::Tokenizer;
 
 /// Per-token MLP curve model.

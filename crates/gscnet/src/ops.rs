@@ -1,5 +1,6 @@
 //! The Burn backend extension for GSC-Net's fused CPU kernels ([`crate::cpu`]): the selective
-//! scan and the spectral depthwise convolution + SiLU, each with a hand-written backward op.
+//! scan, the spectral depthwise convolution + SiLU and SiLU itself, each with a hand-written
+//! backward op.
 //! Registered for NdArray, Flex and Autodiff over either; the functions below are what the
 //! modules call.
 
@@ -79,6 +80,12 @@ pub trait SpectralOps: Backend {
         bias: FloatTensor<Self>,
         grad: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
+
+    /// SiLU, `x σ(x)`, element-wise (any shape).
+    fn silu(x: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The gradient of `⟨grad, silu(x)⟩` with respect to `x`.
+    fn silu_backward(x: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
 }
 
 /// The fused selective scan (shapes checked by the caller, [`crate::ssm::selective_scan`]); with
@@ -117,4 +124,13 @@ pub(crate) fn fused_conv_silu(u: Tensor<3>, w: Tensor<2>, bias: Tensor<1>) -> Te
         w.into_dispatch(),
         bias.into_dispatch(),
     ))
+}
+
+/// SiLU, `x σ(x)`, as one fused op (one pass forward, one backward, multi-threaded on the CPU
+/// backends; Burn's composed `silu` elsewhere). Every SiLU of GSC-Net goes through it.
+pub fn silu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    if !crate::composed::has_fused_kernels(&x.device()) {
+        return burn::tensor::activation::silu(x);
+    }
+    Tensor::from_dispatch(Dispatch::silu(x.into_dispatch()))
 }

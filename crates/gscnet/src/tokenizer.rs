@@ -9,10 +9,10 @@
 use crate::init::SeedStream;
 use burn::module::Module;
 use burn::nn::Linear;
-use burn::tensor::activation::silu;
 use burn::tensor::{Device, Tensor, TensorData};
 
 use crate::init;
+use crate::ops::silu;
 
 /// Fourier features of a column of scalars: `v` [n, 1] → [n, 1 + 2F].
 pub fn fourier_features(v: Tensor<2>, frequencies: usize) -> Tensor<2> {

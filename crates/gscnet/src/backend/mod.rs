@@ -107,6 +107,18 @@ macro_rules! impl_cpu_spectral_ops {
                     Self::tensor(g.bias, Self::dims(&bias)),
                 )
             }
+
+            fn silu(x: FloatTensor<Self>) -> FloatTensor<Self> {
+                let y = Self::with_values([&x], |[x]| $crate::cpu::silu::silu_forward(x));
+                Self::tensor(y, Self::dims(&x))
+            }
+
+            fn silu_backward(x: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self> {
+                let g = Self::with_values([&x, &grad], |[x, grad]| {
+                    $crate::cpu::silu::silu_backward(x, grad)
+                });
+                Self::tensor(g, Self::dims(&x))
+            }
         }
     };
 }
