@@ -12,8 +12,18 @@ use burn::tensor::{Device, Tensor, TensorData};
 pub const SSIM_WINDOW: usize = 11;
 /// Standard deviation of the SSIM window (pixels).
 pub const SSIM_SIGMA: f64 = 1.5;
-const C1: f64 = 0.01 * 0.01;
-const C2: f64 = 0.03 * 0.03;
+pub(crate) const C1: f64 = 0.01 * 0.01;
+pub(crate) const C2: f64 = 0.03 * 0.03;
+
+/// The normalised 1-D SSIM window (f32 weights of an f64 Gaussian, summing to 1 in f64).
+pub(crate) fn ssim_window() -> [f32; SSIM_WINDOW] {
+    let c = (SSIM_WINDOW / 2) as f64;
+    let w: [f64; SSIM_WINDOW] = std::array::from_fn(|i| {
+        (-((i as f64 - c).powi(2)) / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp()
+    });
+    let total: f64 = w.iter().sum();
+    w.map(|v| (v / total) as f32)
+}
 
 /// Mean absolute difference.
 pub fn l1(pred: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
@@ -100,12 +110,7 @@ pub struct SsimWindow {
 impl SsimWindow {
     pub fn new(device: &Device) -> Self {
         let n = SSIM_WINDOW;
-        let c = (n / 2) as f64;
-        let w: Vec<f64> = (0..n)
-            .map(|i| (-((i as f64 - c).powi(2)) / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp())
-            .collect();
-        let total: f64 = w.iter().sum();
-        let w: Vec<f32> = w.iter().map(|v| (v / total) as f32).collect();
+        let w = ssim_window().to_vec();
         SsimWindow {
             vertical: Tensor::from_data(TensorData::new(w.clone(), [1, 1, n, 1]), device),
             horizontal: Tensor::from_data(TensorData::new(w, [1, 1, 1, n]), device),
@@ -129,8 +134,19 @@ impl SsimWindow {
         )
     }
 
-    /// Mean SSIM over every image of `[N, C, H, W]` (each of the N·C images on its own).
+    /// Mean SSIM over every image of `[N, C, H, W]` (each of the N·C images on its own); the
+    /// target is data (not differentiated). One fused op on the CPU backends
+    /// ([`super::ssim`]), [`SsimWindow::composed_ssim`] on wgpu.
     pub fn ssim(&self, pred: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
+        if prism_render::ops::is_gpu(&pred.device()) {
+            self.composed_ssim(pred, target)
+        } else {
+            super::ssim::fused_ssim_mean(pred, target)
+        }
+    }
+
+    /// [`SsimWindow::ssim`] composed of Burn ops (blurs as two 1-D convolutions).
+    pub fn composed_ssim(&self, pred: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
         let [n, c, h, w] = pred.dims();
         let b = n * c;
         let p = pred.reshape([b, 1, h, w]);
@@ -259,6 +275,33 @@ mod tests {
                 "pixel {i}: autodiff {} vs finite difference {fd}",
                 g[i]
             );
+        }
+    }
+
+    /// The fused op (CPU backends) and the composed form (wgpu) agree in value and gradient
+    /// on a batch of `[2, 3, 13, 29]` images, to f32 rounding of their different sum orders.
+    #[test]
+    fn fused_ssim_matches_the_composed_form_and_its_gradient() {
+        let (n, c, h, w) = (2, 3, 13, 29);
+        let ad = device().autodiff();
+        let win = SsimWindow::new(&ad);
+        let len = n * c * h * w;
+        let p = image(1, len, 5);
+        let t: Vec<f32> = image(1, len, 9).iter().rev().map(|v| 1.2 - v).collect();
+        let leaf = |v: &[f32]| {
+            Tensor::<4>::from_data(TensorData::new(v.to_vec(), [n, c, h, w]), &ad).require_grad()
+        };
+        let target = Tensor::<4>::from_data(TensorData::new(t, [n, c, h, w]), &ad);
+        let (pf, pc) = (leaf(&p), leaf(&p));
+        let fused = win.ssim(pf.clone(), target.clone());
+        let composed = win.composed_ssim(pc.clone(), target);
+        let (vf, vc): (f32, f32) = (fused.clone().into_scalar(), composed.clone().into_scalar());
+        assert!(vc < 0.9 && (vf - vc).abs() < 1e-5, "{vf} vs {vc}");
+        let gf = host_values(&pf.grad(&fused.backward()).unwrap());
+        let gc = host_values(&pc.grad(&composed.backward()).unwrap());
+        let scale = gc.iter().fold(0.0f32, |a, v| a.max(v.abs()));
+        for (a, b) in gf.iter().zip(&gc) {
+            assert!((a - b).abs() <= 1e-4 * scale, "{a} vs {b} (scale {scale})");
         }
     }
 

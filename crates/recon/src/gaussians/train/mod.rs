@@ -15,6 +15,7 @@ pub mod evaluator;
 pub mod head;
 pub mod loss;
 pub mod settings;
+pub mod ssim;
 pub mod trainer;
 
 pub use checkpoints::Checkpoints;
