@@ -4,10 +4,10 @@
 //! Activations (R²-Gaussian): density = softplus(raw), scale = min + (max − min)·sigmoid(raw),
 //! rotation = the raw quaternion (normalised inside the render op). Positions are unconstrained.
 
+use super::activation::{Activation, activate};
 use super::adam::AdamParam;
 use super::host::{HostGaussians, ScaleBounds};
 use crate::device::{host_values, upload};
-use burn::tensor::activation::sigmoid;
 use burn::tensor::{Device, Tensor};
 use prism_render::Gaussians;
 
@@ -36,9 +36,9 @@ impl Learnable {
     };
 }
 
-/// Overflow-free softplus on tensors: `max(x, 0) + ln(1 + e^{−|x|})`.
+/// Overflow-free softplus on tensors: `max(x, 0) + ln(1 + e^{−|x|})` ([`Activation::Softplus`]).
 pub fn softplus(x: Tensor<2>) -> Tensor<2> {
-    x.clone().clamp_min(0.0) + x.abs().neg().exp().log1p()
+    activate(x, Activation::Softplus)
 }
 
 /// Raw parameters on a device with their optimiser state.
@@ -137,7 +137,14 @@ impl GaussianModel {
         let (lo, hi) = (self.bounds.min, self.bounds.max);
         let gaussians = Gaussians {
             means: leaves[0].clone(),
-            scales: sigmoid(leaves[1].clone()) * (hi - lo) + lo,
+            scales: activate(
+                leaves[1].clone(),
+                // As `σ · (hi − lo) + lo` with f64 scalars: the span rounded once to f32.
+                Activation::Sigmoid {
+                    lo: lo as f32,
+                    span: (hi - lo) as f32,
+                },
+            ),
             rotations: leaves[2].clone(),
             densities: softplus(leaves[3].clone()),
         };
