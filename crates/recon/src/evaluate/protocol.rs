@@ -27,6 +27,7 @@ use prism_domain::metrics::{
     Border, Roi, RoiSpec, SsimParams, psnr, score_json, ssim_2d, ssim_3d, ssim_map, window_axes,
 };
 use prism_domain::scene::Scene;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -270,10 +271,20 @@ pub fn score(
         let used: Vec<usize> = (0..t.shape()[axis])
             .filter(|&i| t.index_axis(Axis(axis), i).iter().any(|&v| v != 0.0))
             .collect();
-        for &i in &used {
-            let (ps, ts) = (p.index_axis(Axis(axis), i), t.index_axis(Axis(axis), i));
-            psnr_sum += psnr(ps, ts, 1.0)?.min(PSNR_CAP);
-            ssim_sum += ssim_2d(ps, ts, &zero_pad)?;
+        // Slices scored in parallel, summed in order (the same sums as one loop).
+        let scores: Vec<(f64, f64)> = used
+            .par_iter()
+            .map(|&i| {
+                let (ps, ts) = (p.index_axis(Axis(axis), i), t.index_axis(Axis(axis), i));
+                Ok((
+                    psnr(ps, ts, 1.0)?.min(PSNR_CAP),
+                    ssim_2d(ps, ts, &zero_pad)?,
+                ))
+            })
+            .collect::<Result<_>>()?;
+        for (a, b) in scores {
+            psnr_sum += a;
+            ssim_sum += b;
         }
         if let Some((net, _)) = eval.lpips.as_deref() {
             lpips_sum += lpips_of(net, &p, &t, axis, &used)?;
@@ -372,7 +383,10 @@ fn score_in(
     let mut stats: [Vec<[f64; 5]>; 3] = Default::default();
     for k in 0..3 {
         if volume_axes.contains(&k) || slice_axes.contains(&k) {
-            stats[k] = (0..n[k]).map(|i| slice(k, i)).collect::<Result<_>>()?;
+            stats[k] = (0..n[k])
+                .into_par_iter()
+                .map(|i| slice(k, i))
+                .collect::<Result<_>>()?;
         }
     }
     let to_db = |se: f64, count: f64| 10.0 * (count / se).log10();
