@@ -3,27 +3,11 @@
 //! total variation of a voxelized patch.
 
 use super::data::Supervision;
+use super::ssim::window::{C1, C2, SSIM_WINDOW, ssim_window};
 use crate::device::host_values;
 use burn::tensor::module::conv2d;
 use burn::tensor::ops::ConvOptions;
 use burn::tensor::{Device, Tensor, TensorData};
-
-/// Side of the SSIM window (pixels).
-pub const SSIM_WINDOW: usize = 11;
-/// Standard deviation of the SSIM window (pixels).
-pub const SSIM_SIGMA: f64 = 1.5;
-pub(crate) const C1: f64 = 0.01 * 0.01;
-pub(crate) const C2: f64 = 0.03 * 0.03;
-
-/// The normalised 1-D SSIM window (f32 weights of an f64 Gaussian, summing to 1 in f64).
-pub(crate) fn ssim_window() -> [f32; SSIM_WINDOW] {
-    let c = (SSIM_WINDOW / 2) as f64;
-    let w: [f64; SSIM_WINDOW] = std::array::from_fn(|i| {
-        (-((i as f64 - c).powi(2)) / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp()
-    });
-    let total: f64 = w.iter().sum();
-    w.map(|v| (v / total) as f32)
-}
 
 /// Mean absolute difference.
 pub fn l1(pred: Tensor<4>, target: Tensor<4>) -> Tensor<1> {

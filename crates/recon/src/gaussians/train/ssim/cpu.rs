@@ -26,7 +26,7 @@
 
 use rayon::prelude::*;
 
-use crate::gaussians::train::loss::{C1, C2, SSIM_WINDOW, ssim_window};
+use super::window::{C1, C2, SSIM_WINDOW, ssim_window};
 
 /// Images `[images, h, w]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -194,8 +194,8 @@ pub fn ssim_mean_backward(dims: Dims, pred: &[f32], target: &[f32], g: f32) -> V
 
 #[cfg(test)]
 mod tests {
+    use super::super::window::SSIM_SIGMA;
     use super::*;
-    use crate::gaussians::train::loss::SSIM_SIGMA;
 
     /// f64 SSIM of one image by the definition (window sums over the image, zero outside), the
     /// independent truth for the kernel's value and, by central differences, its gradient.

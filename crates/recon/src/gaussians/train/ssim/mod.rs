@@ -8,6 +8,7 @@
 #![allow(deprecated)]
 
 pub mod cpu;
+pub mod window;
 
 use burn::backend::autodiff::{
     Autodiff,
