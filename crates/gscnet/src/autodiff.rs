@@ -10,7 +10,7 @@ use burn::backend::autodiff::{
 use burn::backend::tensor::FloatTensor;
 use prism_kernel::autodiff::{backpropagate, inner, lift, record};
 
-use crate::ops::{ScanTensors, SpectralOps};
+use crate::ops::{Activation, ScanTensors, SpectralOps};
 
 #[derive(Debug)]
 struct ScanBackward;
@@ -40,13 +40,15 @@ impl<B: SpectralOps> Backward<B, 3> for ConvBackward {
 }
 
 #[derive(Debug)]
-struct SiluBackward;
+struct ActivationBackward;
 
-impl<B: SpectralOps> Backward<B, 1> for SiluBackward {
-    type State = FloatTensor<B>;
+impl<B: SpectralOps> Backward<B, 1> for ActivationBackward {
+    type State = (FloatTensor<B>, Activation);
 
     fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _ck: &mut Checkpointer) {
-        backpropagate::<B, _, 1>(ops, grads, |x, grad| [B::silu_backward(x, grad)]);
+        backpropagate::<B, _, 1>(ops, grads, |(x, kind), grad| {
+            [B::activate_backward(x, kind, grad)]
+        });
     }
 }
 
@@ -96,13 +98,22 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         (g0, g1, g2)
     }
 
-    fn silu(x: FloatTensor<Self>) -> FloatTensor<Self> {
-        record::<B, C, _, _, 1>(SiluBackward, [x], |[x]| x, |[x]| B::silu(x))
+    fn activate(x: FloatTensor<Self>, kind: Activation) -> FloatTensor<Self> {
+        record::<B, C, _, _, 1>(
+            ActivationBackward,
+            [x],
+            |[x]| (x, kind),
+            |[x]| B::activate(x, kind),
+        )
     }
 
-    fn silu_backward(x: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self> {
+    fn activate_backward(
+        x: FloatTensor<Self>,
+        kind: Activation,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
         let [x, grad] = inner([x, grad]);
-        let [g] = lift([B::silu_backward(x, grad)]);
+        let [g] = lift([B::activate_backward(x, kind, grad)]);
         g
     }
 }

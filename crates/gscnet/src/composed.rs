@@ -55,6 +55,16 @@ pub fn selective_scan(
     Tensor::cat(ys, 1)
 }
 
+/// [`crate::ops::activate`] composed of Burn ops.
+pub fn activate<const D: usize>(x: Tensor<D>, kind: crate::ops::Activation) -> Tensor<D> {
+    use crate::ops::Activation;
+    match kind {
+        Activation::Silu => activation::silu(x),
+        Activation::Softplus => x.clone().clamp_min(0.0) + x.abs().neg().exp().log1p(),
+        Activation::Sigmoid { lo, span } => activation::sigmoid(x) * span + lo,
+    }
+}
+
 /// SiLU of the centred depthwise convolution over M of [`crate::conv`]:
 /// `p_{k,m,e} = bias_e + Σ_j w_{e,j} u_{k, m+j−r, e}` with zero padding.
 pub fn conv_silu(u: Tensor<3>, w: Tensor<2>, bias: Tensor<1>) -> Tensor<3> {
@@ -213,5 +223,51 @@ mod tests {
             vec_of(x.grad(&gc).unwrap()),
             vec_of(x.grad(&gf).unwrap()),
         );
+    }
+
+    /// The fused density softplus and scale sigmoid against their composed forms (wgpu's) in
+    /// value and gradient, on `[5, 7]` values over [−30, 30].
+    #[test]
+    fn composed_gaussian_activations_match_the_fused_kernel_and_their_gradients() {
+        use crate::ops::Activation;
+        let ad = device();
+        let v: Vec<f32> = (0..35)
+            .map(|i| -30.0 + 60.0 * (i as f32 / 34.0).powi(3))
+            .collect();
+        let g: Vec<f32> = (0..35).map(|i| ((i * 7) % 11) as f32 / 5.0 - 1.0).collect();
+        let leaf =
+            || Tensor::<2>::from_data(TensorData::new(v.clone(), [5, 7]), &ad).require_grad();
+        let up = Tensor::<2>::from_data(TensorData::new(g, [5, 7]), &ad);
+        for kind in [
+            Activation::Softplus,
+            Activation::Sigmoid {
+                lo: 0.01,
+                span: 0.49,
+            },
+        ] {
+            let (xf, xc) = (leaf(), leaf());
+            let (yf, yc) = (
+                crate::ops::activate(xf.clone(), kind),
+                activate(xc.clone(), kind),
+            );
+            // Values to 2e-6 relative. The composed sigmoid's gradient σ(1 − σ) loses ulp(σ) to
+            // cancellation in 1 − σ, an absolute error ≲ span·6e-8·|ḡ|, so gradients are held
+            // to 1e-6 of their largest entry.
+            let close = |a: &[f32], b: &[f32], what: &str| {
+                let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+                for (p, q) in a.iter().zip(b) {
+                    let tol = if what == "value" {
+                        2e-6 * q.abs().max(1e-3)
+                    } else {
+                        1e-6 * scale
+                    };
+                    assert!((p - q).abs() <= tol, "{kind:?} {what}: {p} vs {q}");
+                }
+            };
+            close(&vec_of(yf.clone()), &vec_of(yc.clone()), "value");
+            let gf = xf.grad(&(yf * up.clone()).sum().backward()).unwrap();
+            let gc = xc.grad(&(yc * up.clone()).sum().backward()).unwrap();
+            close(&vec_of(gf), &vec_of(gc), "gradient");
+        }
     }
 }

@@ -1,6 +1,7 @@
 //! The Burn backend extension for GSC-Net's fused CPU kernels ([`crate::cpu`]): the selective
-//! scan, the spectral depthwise convolution + SiLU and SiLU itself, each with a hand-written
-//! backward op.
+//! scan, the spectral depthwise convolution + SiLU and the element-wise activations (GSC-Net's
+//! SiLU, and the Gaussians' softplus and bounded sigmoid, which `prism-recon` applies through
+//! [`activate`]), each with a hand-written backward op.
 //! Registered for NdArray, Flex and Autodiff over either; the functions below are what the
 //! modules call.
 
@@ -81,11 +82,15 @@ pub trait SpectralOps: Backend {
         grad: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 
-    /// SiLU, `x σ(x)`, element-wise (any shape).
-    fn silu(x: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// `kind` of every element of `x` (any shape).
+    fn activate(x: FloatTensor<Self>, kind: Activation) -> FloatTensor<Self>;
 
-    /// The gradient of `⟨grad, silu(x)⟩` with respect to `x`.
-    fn silu_backward(x: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// The gradient of `⟨grad, activate(x, kind)⟩` with respect to `x`.
+    fn activate_backward(
+        x: FloatTensor<Self>,
+        kind: Activation,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
 }
 
 /// The fused selective scan (shapes checked by the caller, [`crate::ssm::selective_scan`]); with
@@ -126,11 +131,28 @@ pub(crate) fn fused_conv_silu(u: Tensor<3>, w: Tensor<2>, bias: Tensor<1>) -> Te
     ))
 }
 
-/// SiLU, `x σ(x)`, as one fused op (one pass forward, one backward, multi-threaded on the CPU
-/// backends; Burn's composed `silu` elsewhere). Every SiLU of GSC-Net goes through it.
-pub fn silu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+/// An element-wise activation ([`activate`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Activation {
+    /// `x σ(x)`.
+    Silu,
+    /// `ln(1 + eˣ)`.
+    Softplus,
+    /// `σ(x)·span + lo` (a value in `(lo, lo + span)`).
+    Sigmoid { lo: f32, span: f32 },
+}
+
+/// `kind` of every element of `x` as one fused op: one pass forward, one backward,
+/// multi-threaded on the CPU backends ([`crate::cpu::activation`]); Burn's composed form
+/// ([`crate::composed::activate`]) on wgpu.
+pub fn activate<const D: usize>(x: Tensor<D>, kind: Activation) -> Tensor<D> {
     if !crate::composed::has_fused_kernels(&x.device()) {
-        return burn::tensor::activation::silu(x);
+        return crate::composed::activate(x, kind);
     }
-    Tensor::from_dispatch(Dispatch::silu(x.into_dispatch()))
+    Tensor::from_dispatch(Dispatch::activate(x.into_dispatch(), kind))
+}
+
+/// SiLU, `x σ(x)` ([`activate`]): every SiLU of GSC-Net goes through it.
+pub fn silu<const D: usize>(x: Tensor<D>) -> Tensor<D> {
+    activate(x, Activation::Silu)
 }

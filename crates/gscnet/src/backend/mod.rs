@@ -108,14 +108,18 @@ macro_rules! impl_cpu_spectral_ops {
                 )
             }
 
-            fn silu(x: FloatTensor<Self>) -> FloatTensor<Self> {
-                let y = Self::with_values([&x], |[x]| $crate::cpu::silu::silu_forward(x));
+            fn activate(x: FloatTensor<Self>, kind: $crate::ops::Activation) -> FloatTensor<Self> {
+                let y = Self::with_values([&x], |[x]| $crate::cpu::activation::forward(kind, x));
                 Self::tensor(y, Self::dims(&x))
             }
 
-            fn silu_backward(x: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self> {
+            fn activate_backward(
+                x: FloatTensor<Self>,
+                kind: $crate::ops::Activation,
+                grad: FloatTensor<Self>,
+            ) -> FloatTensor<Self> {
                 let g = Self::with_values([&x, &grad], |[x, grad]| {
-                    $crate::cpu::silu::silu_backward(x, grad)
+                    $crate::cpu::activation::backward(kind, x, grad)
                 });
                 Self::tensor(g, Self::dims(&x))
             }

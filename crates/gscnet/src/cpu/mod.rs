@@ -31,10 +31,10 @@ macro_rules! dispatched {
     };
 }
 
+pub mod activation;
 pub mod conv;
 mod math;
 pub mod scan;
-pub mod silu;
 
 /// Gaussians per rayon task: large enough to amortise scheduling, small enough to balance.
 pub(crate) const BLOCK: usize = 256;

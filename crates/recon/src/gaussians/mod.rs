@@ -1,11 +1,10 @@
 //! The Gaussian representation of attenuation: raw parameters on the host ([`host`]) and on a
-//! Burn device with their Adam state ([`model`], [`adam`]) and activations ([`activation`]), the normalised [`world`] they live
+//! Burn device with their Adam state ([`model`], [`adam`]), the normalised [`world`] they live
 //! in, their voxelized volumes ([`volume`]), and their files ([`io`]: safetensors and PLY).
 //!
 //! Units: the model lives in the normalised [`World`] (largest volume edge = 2, densities in
 //! units of the FDK's 99.9th percentile); volumes and files are converted back to mm and mm⁻¹.
 
-pub mod activation;
 pub mod adam;
 pub mod config;
 pub mod finish;

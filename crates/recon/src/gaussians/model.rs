@@ -4,11 +4,11 @@
 //! Activations (R²-Gaussian): density = softplus(raw), scale = min + (max − min)·sigmoid(raw),
 //! rotation = the raw quaternion (normalised inside the render op). Positions are unconstrained.
 
-use super::activation::{Activation, activate};
 use super::adam::AdamParam;
 use super::host::{HostGaussians, ScaleBounds};
 use crate::device::{host_values, upload};
 use burn::tensor::{Device, Tensor};
+use prism_gscnet::ops::{Activation, activate};
 use prism_render::Gaussians;
 
 /// Which parameter groups receive gradients and Adam steps.
@@ -36,7 +36,7 @@ impl Learnable {
     };
 }
 
-/// Overflow-free softplus on tensors: `max(x, 0) + ln(1 + e^{−|x|})` ([`Activation::Softplus`]).
+/// Overflow-free softplus on tensors ([`Activation::Softplus`]).
 pub fn softplus(x: Tensor<2>) -> Tensor<2> {
     activate(x, Activation::Softplus)
 }

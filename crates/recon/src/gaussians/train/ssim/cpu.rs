@@ -83,14 +83,14 @@ fn moments(dims: Dims, pred: &[f32], target: &[f32], k: &[f32; SSIM_WINDOW]) -> 
             let (i, which) = (job / 5, job % 5);
             let p = &pred[i * n..(i + 1) * n];
             let t = &target[i * n..(i + 1) * n];
-            let src: Vec<f32> = match which {
-                0 => p.to_vec(),
-                1 => t.to_vec(),
+            let product: Vec<f32> = match which {
+                0 => return blur(p, dims.h, dims.w, k),
+                1 => return blur(t, dims.h, dims.w, k),
                 2 => p.iter().map(|v| v * v).collect(),
                 3 => t.iter().map(|v| v * v).collect(),
                 _ => p.iter().zip(t).map(|(a, b)| a * b).collect(),
             };
-            blur(&src, dims.h, dims.w, k)
+            blur(&product, dims.h, dims.w, k)
         })
         .collect()
 }
