@@ -4,6 +4,8 @@
 
 use burn::tensor::{Tensor, activation};
 
+use crate::cpu::activation::Activation;
+
 /// Whether `device` has the fused CPU kernels (Flex, NdArray, with or without autodiff).
 pub fn has_fused_kernels(device: &burn::tensor::Device) -> bool {
     #[cfg(feature = "wgpu")]
@@ -56,8 +58,7 @@ pub fn selective_scan(
 }
 
 /// [`crate::ops::activate`] composed of Burn ops.
-pub fn activate<const D: usize>(x: Tensor<D>, kind: crate::ops::Activation) -> Tensor<D> {
-    use crate::ops::Activation;
+pub fn activate<const D: usize>(x: Tensor<D>, kind: Activation) -> Tensor<D> {
     match kind {
         Activation::Silu => activation::silu(x),
         Activation::Softplus => x.clone().clamp_min(0.0) + x.abs().neg().exp().log1p(),
@@ -229,7 +230,6 @@ mod tests {
     /// value and gradient, on `[5, 7]` values over [−30, 30].
     #[test]
     fn composed_gaussian_activations_match_the_fused_kernel_and_their_gradients() {
-        use crate::ops::Activation;
         let ad = device();
         let v: Vec<f32> = (0..35)
             .map(|i| -30.0 + 60.0 * (i as f32 / 34.0).powi(3))

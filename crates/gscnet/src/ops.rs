@@ -131,16 +131,7 @@ pub(crate) fn fused_conv_silu(u: Tensor<3>, w: Tensor<2>, bias: Tensor<1>) -> Te
     ))
 }
 
-/// An element-wise activation ([`activate`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Activation {
-    /// `x σ(x)`.
-    Silu,
-    /// `ln(1 + eˣ)`.
-    Softplus,
-    /// `σ(x)·span + lo` (a value in `(lo, lo + span)`).
-    Sigmoid { lo: f32, span: f32 },
-}
+pub use crate::cpu::activation::Activation;
 
 /// `kind` of every element of `x` as one fused op: one pass forward, one backward,
 /// multi-threaded on the CPU backends ([`crate::cpu::activation`]); Burn's composed form

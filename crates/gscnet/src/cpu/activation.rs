@@ -16,7 +16,17 @@ use rayon::prelude::*;
 
 use super::has_avx2;
 use super::math::{self, MulAdd};
-use crate::ops::Activation;
+
+/// An element-wise activation ([`crate::ops::activate`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Activation {
+    /// `x σ(x)`.
+    Silu,
+    /// `ln(1 + eˣ)`.
+    Softplus,
+    /// `σ(x)·span + lo` (a value in `(lo, lo + span)`).
+    Sigmoid { lo: f32, span: f32 },
+}
 
 /// Elements per rayon task: a few microseconds of work, so scheduling stays negligible.
 const CHUNK: usize = 16 * 1024;
