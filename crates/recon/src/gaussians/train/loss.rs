@@ -164,8 +164,18 @@ impl SsimWindow {
 }
 
 /// Total variation of `[M, Z, Y, X]` volumes: the mean absolute forward difference over all
-/// three axes, `(Σ|Δx| + Σ|Δy| + Σ|Δz|) / (number of differences)` (R²-Gaussian's TV).
+/// three axes, `(Σ|Δx| + Σ|Δy| + Σ|Δz|) / (number of differences)` (R²-Gaussian's TV). One fused
+/// op on the CPU backends ([`super::tv`]), [`composed_total_variation`] on wgpu.
 pub fn total_variation(v: Tensor<4>) -> Tensor<1> {
+    if prism_render::ops::is_gpu(&v.device()) {
+        composed_total_variation(v)
+    } else {
+        super::tv::fused_total_variation(v)
+    }
+}
+
+/// [`total_variation`] composed of Burn ops.
+pub fn composed_total_variation(v: Tensor<4>) -> Tensor<1> {
     let [m, z, y, x] = v.dims();
     let mut sum: Option<Tensor<1>> = None;
     let mut count = 0usize;
@@ -189,6 +199,7 @@ pub fn total_variation(v: Tensor<4>) -> Tensor<1> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::tv::cpu::Dims;
     use super::*;
     use ndarray::Array2;
     use prism_domain::metrics::{SsimParams, ssim_2d};
@@ -334,6 +345,33 @@ mod tests {
             weighted_l1(t.clone() + 1.0, t, count_weights(&sup, f)[0].clone()).into_scalar();
         let mean = want[0].iter().sum::<f64>() / 4.0;
         assert!((l as f64 - mean).abs() < 1e-6, "{l} vs {mean}");
+    }
+
+    /// The fused op (CPU backends) and the composed form (wgpu) agree in value (f32 sums in
+    /// another order) and gradient (sums of ±g/n, one rounding apart at most), on volumes with
+    /// ties (equal neighbours: sign 0) and one- and two-voxel axes.
+    #[test]
+    fn fused_total_variation_matches_the_composed_form_and_its_gradient() {
+        let ad = device().autodiff();
+        for shape in [[2, 3, 5, 7], [1, 1, 4, 9], [3, 2, 1, 2]] {
+            let len: usize = shape.iter().product();
+            // Values on a coarse lattice, so many neighbours are equal.
+            let v: Vec<f32> = image(1, len, 3).iter().map(|x| (x * 8.0).round()).collect();
+            let leaf =
+                || Tensor::<4>::from_data(TensorData::new(v.clone(), shape), &ad).require_grad();
+            let (vf, vc) = (leaf(), leaf());
+            let fused = total_variation(vf.clone()) * 0.7;
+            let composed = composed_total_variation(vc.clone()) * 0.7;
+            let (a, b): (f32, f32) = (fused.clone().into_scalar(), composed.clone().into_scalar());
+            assert!((a - b).abs() <= 1e-6 * b.abs(), "{shape:?}: {a} vs {b}");
+            let gf = host_values(&vf.grad(&fused.backward()).unwrap());
+            let gc = host_values(&vc.grad(&composed.backward()).unwrap());
+            let unit = 0.7 / Dims::of(&shape).differences().max(1) as f32;
+            for (x, y) in gf.iter().zip(&gc) {
+                assert!((x - y).abs() <= 1e-6 * unit, "{shape:?}: {x} vs {y}");
+            }
+            assert!(gc.iter().any(|g| *g != 0.0), "{shape:?}: a zero gradient");
+        }
     }
 
     #[test]

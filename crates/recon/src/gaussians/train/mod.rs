@@ -17,6 +17,7 @@ pub mod loss;
 pub mod settings;
 pub mod ssim;
 pub mod trainer;
+pub mod tv;
 
 pub use checkpoints::Checkpoints;
 pub use data::{Supervision, View};

@@ -1,0 +1,76 @@
+//! One Adam step as a single pass over a parameter tensor and its moments, multi-threaded.
+//!
+//! Every element goes through the same f32 operations, in the same order, as the composed form
+//! ([`super::AdamParam::composed_step`]: Burn's scalar ops round their f64 scalars to f32 once),
+//! so the two agree bit for bit; the fused form reads each tensor once and writes each result
+//! once instead of a dozen element-wise passes on one thread.
+
+use rayon::prelude::*;
+
+/// Elements per task.
+const CHUNK: usize = 4096;
+
+/// The step's scalars as the composed form applies them (each rounded to f32 once).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdamScalars {
+    pub beta1: f32,
+    pub one_minus_beta1: f32,
+    pub beta2: f32,
+    pub one_minus_beta2: f32,
+    /// Bias corrections `1 − β₁ᵗ`, `1 − β₂ᵗ`.
+    pub correction1: f32,
+    pub correction2: f32,
+    pub eps: f32,
+    pub lr: f32,
+}
+
+impl AdamScalars {
+    /// The scalars of step `t` (1-based) with learning rate `lr`.
+    pub fn new(t: i32, lr: f64) -> Self {
+        use super::{BETA1, BETA2, EPS};
+        Self {
+            beta1: BETA1 as f32,
+            one_minus_beta1: (1.0 - BETA1) as f32,
+            beta2: BETA2 as f32,
+            one_minus_beta2: (1.0 - BETA2) as f32,
+            correction1: (1.0 - BETA1.powi(t)) as f32,
+            correction2: (1.0 - BETA2.powi(t)) as f32,
+            eps: EPS as f32,
+            lr: lr as f32,
+        }
+    }
+}
+
+/// The new `(value, m1, m2)` after one step with gradient `grad` (all the same length).
+pub fn adam_step(
+    s: &AdamScalars,
+    value: &[f32],
+    m1: &[f32],
+    m2: &[f32],
+    grad: &[f32],
+) -> [Vec<f32>; 3] {
+    let n = value.len();
+    assert!(
+        m1.len() == n && m2.len() == n && grad.len() == n,
+        "adam: the value, its moments and its gradient differ in length"
+    );
+    let mut out = [vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]];
+    let [ov, o1, o2] = &mut out;
+    ov.par_chunks_mut(CHUNK)
+        .zip(o1.par_chunks_mut(CHUNK))
+        .zip(o2.par_chunks_mut(CHUNK))
+        .enumerate()
+        .for_each(|(t, ((ov, o1), o2))| {
+            let r = t * CHUNK..t * CHUNK + ov.len();
+            let (v, a, b, g) = (&value[r.clone()], &m1[r.clone()], &m2[r.clone()], &grad[r]);
+            for i in 0..ov.len() {
+                let m1n = a[i] * s.beta1 + g[i] * s.one_minus_beta1;
+                let m2n = b[i] * s.beta2 + g[i] * g[i] * s.one_minus_beta2;
+                let update = (m1n / s.correction1) / ((m2n / s.correction2).sqrt() + s.eps);
+                ov[i] = v[i] - update * s.lr;
+                o1[i] = m1n;
+                o2[i] = m2n;
+            }
+        });
+    out
+}
