@@ -10,7 +10,8 @@ use rayon::prelude::*;
 /// Elements per task.
 const CHUNK: usize = 4096;
 
-/// The step's scalars as the composed form applies them (each rounded to f32 once).
+/// The step's scalars as the composed form applies them (each rounded to f32 once; built by
+/// [`super::AdamParam::step`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AdamScalars {
     pub beta1: f32,
@@ -22,23 +23,6 @@ pub struct AdamScalars {
     pub correction2: f32,
     pub eps: f32,
     pub lr: f32,
-}
-
-impl AdamScalars {
-    /// The scalars of step `t` (1-based) with learning rate `lr`.
-    pub fn new(t: i32, lr: f64) -> Self {
-        use super::{BETA1, BETA2, EPS};
-        Self {
-            beta1: BETA1 as f32,
-            one_minus_beta1: (1.0 - BETA1) as f32,
-            beta2: BETA2 as f32,
-            one_minus_beta2: (1.0 - BETA2) as f32,
-            correction1: (1.0 - BETA1.powi(t)) as f32,
-            correction2: (1.0 - BETA2.powi(t)) as f32,
-            eps: EPS as f32,
-            lr: lr as f32,
-        }
-    }
 }
 
 /// The new `(value, m1, m2)` after one step with gradient `grad` (all the same length).

@@ -100,7 +100,7 @@ impl AdamParam {
             self.m1.clone().into_dispatch(),
             self.m2.clone().into_dispatch(),
             grad.into_dispatch(),
-            AdamScalars::new(self.steps, lr),
+            scalars(self.steps, lr),
         );
         self.value = Tensor::from_dispatch(v);
         self.m1 = Tensor::from_dispatch(m1);
@@ -144,6 +144,20 @@ impl AdamParam {
     /// Shapes of (value, first moment, second moment), for checks.
     pub fn shapes(&self) -> [[usize; 2]; 3] {
         [self.value.dims(), self.m1.dims(), self.m2.dims()]
+    }
+}
+
+/// The scalars of step `t` (1-based) with learning rate `lr`, as the composed form rounds them.
+fn scalars(t: i32, lr: f64) -> AdamScalars {
+    AdamScalars {
+        beta1: BETA1 as f32,
+        one_minus_beta1: (1.0 - BETA1) as f32,
+        beta2: BETA2 as f32,
+        one_minus_beta2: (1.0 - BETA2) as f32,
+        correction1: (1.0 - BETA1.powi(t)) as f32,
+        correction2: (1.0 - BETA2.powi(t)) as f32,
+        eps: EPS as f32,
+        lr: lr as f32,
     }
 }
 
