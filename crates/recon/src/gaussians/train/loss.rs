@@ -176,15 +176,14 @@ pub fn total_variation(v: Tensor<4>) -> Tensor<1> {
 
 /// [`total_variation`] composed of Burn ops.
 pub fn composed_total_variation(v: Tensor<4>) -> Tensor<1> {
-    let [m, z, y, x] = v.dims();
+    let [_, z, y, x] = v.dims();
+    let count = super::tv::cpu::Dims::of(&v.dims()).differences();
     let mut sum: Option<Tensor<1>> = None;
-    let mut count = 0usize;
     for (axis, n) in [(1usize, z), (2, y), (3, x)] {
         if n < 2 {
             continue;
         }
         let d = v.clone().narrow(axis, 1, n - 1) - v.clone().narrow(axis, 0, n - 1);
-        count += m * z * y * x / n * (n - 1);
         let s = d.abs().sum();
         sum = Some(match sum {
             Some(acc) => acc + s,

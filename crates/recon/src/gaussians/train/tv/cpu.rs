@@ -109,30 +109,30 @@ pub fn total_variation_backward(d: Dims, v: &[f32], g: f32) -> Vec<f32> {
     let (s, w) = (d.slice(), d.x);
     out.par_chunks_mut(s).enumerate().for_each(|(q, o)| {
         let zi = q % d.z;
-        let at = |dz: isize, i: usize| v[(q as isize + dz) as usize * s + i];
-        for i in 0..s {
+        let base = q * s;
+        for (i, o) in o.iter_mut().enumerate() {
             let (r, c) = (i / w, i % w);
-            let p = v[q * s + i];
+            let p = v[base + i];
             let mut k = 0;
             if c + 1 < w {
-                k -= sign(at(0, i + 1) - p);
+                k -= sign(v[base + i + 1] - p);
             }
             if c > 0 {
-                k += sign(p - at(0, i - 1));
+                k += sign(p - v[base + i - 1]);
             }
             if r + 1 < d.y {
-                k -= sign(at(0, i + w) - p);
+                k -= sign(v[base + i + w] - p);
             }
             if r > 0 {
-                k += sign(p - at(0, i - w));
+                k += sign(p - v[base + i - w]);
             }
             if zi + 1 < d.z {
-                k -= sign(at(1, i) - p);
+                k -= sign(v[base + s + i] - p);
             }
             if zi > 0 {
-                k += sign(p - at(-1, i));
+                k += sign(p - v[base - s + i]);
             }
-            o[i] = k as f32 * scale;
+            *o = k as f32 * scale;
         }
     });
     out
