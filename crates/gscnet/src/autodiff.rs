@@ -40,6 +40,20 @@ impl<B: SpectralOps> Backward<B, 3> for ConvBackward {
 }
 
 #[derive(Debug)]
+struct TableBackward;
+
+impl<B: SpectralOps> Backward<B, 2> for TableBackward {
+    type State = ([FloatTensor<B>; 2], f32);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _ck: &mut Checkpointer) {
+        backpropagate::<B, _, 2>(ops, grads, |([table, u], h), grad| {
+            let (gt, gu) = B::table_lookup_backward(table, u, h, grad);
+            [gt, gu]
+        });
+    }
+}
+
+#[derive(Debug)]
 struct ActivationBackward;
 
 impl<B: SpectralOps> Backward<B, 1> for ActivationBackward {
@@ -96,6 +110,27 @@ impl<B: SpectralOps, C: CheckpointStrategy> SpectralOps for Autodiff<B, C> {
         let (g0, g1, g2) = B::spectral_conv_silu_backward(u, w, bias, grad);
         let [g0, g1, g2] = lift([g0, g1, g2]);
         (g0, g1, g2)
+    }
+
+    fn table_lookup(table: FloatTensor<Self>, u: FloatTensor<Self>, h: f32) -> FloatTensor<Self> {
+        record::<B, C, _, _, 2>(
+            TableBackward,
+            [table, u],
+            |inputs| (inputs, h),
+            |[table, u]| B::table_lookup(table, u, h),
+        )
+    }
+
+    fn table_lookup_backward(
+        table: FloatTensor<Self>,
+        u: FloatTensor<Self>,
+        h: f32,
+        grad: FloatTensor<Self>,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        let [table, u, grad] = inner([table, u, grad]);
+        let (gt, gu) = B::table_lookup_backward(table, u, h, grad);
+        let [gt, gu] = lift([gt, gu]);
+        (gt, gu)
     }
 
     fn activate(x: FloatTensor<Self>, kind: Activation) -> FloatTensor<Self> {

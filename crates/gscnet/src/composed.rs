@@ -87,6 +87,43 @@ pub fn conv_silu(u: Tensor<3>, w: Tensor<2>, bias: Tensor<1>) -> Tensor<3> {
     activation::silu(p)
 }
 
+/// [`crate::ops::table_lookup`] composed of Burn ops: the table's four rows around each û
+/// gathered and blended with Keys' weights ([`crate::cpu::table`]).
+pub fn table_lookup(table: Tensor<2>, u: Tensor<1>, h: f32) -> Tensor<2> {
+    let [rows, _] = table.dims();
+    let pos = u.add_scalar(1.0).div_scalar(h);
+    let lower = pos.clone().floor().clamp(0.0, (rows - 4) as f32).detach();
+    let s = pos.sub(lower.clone());
+    let s2 = s.clone().mul(s.clone());
+    let s3 = s2.clone().mul(s.clone());
+    let weights = [
+        s3.clone()
+            .neg()
+            .add(s2.clone().mul_scalar(2.0))
+            .sub(s.clone()),
+        s3.clone()
+            .mul_scalar(3.0)
+            .sub(s2.clone().mul_scalar(5.0))
+            .add_scalar(2.0),
+        s3.clone()
+            .mul_scalar(-3.0)
+            .add(s2.clone().mul_scalar(4.0))
+            .add(s),
+        s3.sub(s2),
+    ];
+    let lower = lower.int();
+    weights
+        .into_iter()
+        .enumerate()
+        .map(|(j, w)| {
+            let rows = table.clone().select(0, lower.clone().add_scalar(j as i64));
+            rows.mul(w.unsqueeze_dim::<2>(1))
+        })
+        .reduce(|a, b| a.add(b))
+        .expect("four rows")
+        .mul_scalar(0.5)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -206,6 +243,35 @@ mod tests {
                 vec_of(bias.grad(&gf).unwrap()),
             );
         }
+    }
+
+    /// The fused cubic table lookup against its composed form in value and gradients (table
+    /// and û), with û over all of [−1, 1] and both ends.
+    #[test]
+    fn composed_table_lookup_matches_the_fused_kernel_and_its_gradients() {
+        let (t, m, k) = (9, 3, 41);
+        let h = 2.0 / (t - 1) as f32;
+        let table = tensor([t + 2, m], 31, -1.0, 1.0);
+        let v: Vec<f32> = (0..k)
+            .map(|i| -1.0 + 2.0 * i as f32 / (k - 1) as f32)
+            .collect();
+        let u = Tensor::<1>::from_data(TensorData::new(v, [k]), &device()).require_grad();
+        let g = tensor([k, m], 32, -1.0, 1.0);
+        let fused = crate::ops::table_lookup(table.clone(), u.clone(), h);
+        let composed = table_lookup(table.clone(), u.clone(), h);
+        close("lookup", vec_of(composed.clone()), vec_of(fused.clone()));
+        let gf = (fused * g.clone()).sum().backward();
+        let gc = (composed * g).sum().backward();
+        close(
+            "table",
+            vec_of(table.grad(&gc).unwrap()),
+            vec_of(table.grad(&gf).unwrap()),
+        );
+        close(
+            "u",
+            vec_of(u.grad(&gc).unwrap()),
+            vec_of(u.grad(&gf).unwrap()),
+        );
     }
 
     /// The fused SiLU against Burn's composed one (a sigmoid and a product) and its gradient,

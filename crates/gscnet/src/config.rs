@@ -54,11 +54,12 @@ pub struct CurveModelConfig {
     pub dt_min: f32,
     /// See `dt_min`.
     pub dt_max: f32,
-    /// Evaluate the network on T nodes of the conditioned density û ∈ [−1, 1] and interpolate
-    /// linearly to each Gaussian's û (default 2048). A Gaussian enters the network only through
-    /// its common raw density (tokens γ_u(û_i) + γ_s(τ_m)), so this is the same curve up to the
-    /// interpolation error O(h²·|Δu''|), h = 2/(T − 1), at a cost independent of K. 0: evaluate
-    /// the network once per Gaussian.
+    /// Evaluate the network on T nodes of the conditioned density û ∈ [−1, 1] (and one beyond
+    /// each end) and interpolate to each Gaussian's û by cubic convolution (default 512). A
+    /// Gaussian enters the network only through its common raw density (tokens
+    /// γ_u(û_i) + γ_s(τ_m)), so this is the same curve up to the interpolation error
+    /// O(h³·|Δu‴|) (slopes O(h²)), h = 2/(T − 1), at a cost independent of K. 0: evaluate the
+    /// network once per Gaussian.
     pub table_size: usize,
 }
 
@@ -75,7 +76,7 @@ impl Default for CurveModelConfig {
             u_scale: 4.0,
             dt_min: 0.01,
             dt_max: 1.0,
-            table_size: 2048,
+            table_size: 512,
         }
     }
 }

@@ -82,6 +82,18 @@ pub trait SpectralOps: Backend {
         grad: FloatTensor<Self>,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 
+    /// The curve table `table [R, M]` (nodes spaced `h` from −1 − h) read at every û of
+    /// `u [K]` by cubic convolution ([`crate::cpu::table`]) → `[K, M]`.
+    fn table_lookup(table: FloatTensor<Self>, u: FloatTensor<Self>, h: f32) -> FloatTensor<Self>;
+
+    /// Gradients `(table, u)` of `⟨grad, table_lookup(..)⟩`.
+    fn table_lookup_backward(
+        table: FloatTensor<Self>,
+        u: FloatTensor<Self>,
+        h: f32,
+        grad: FloatTensor<Self>,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
+
     /// `kind` of every element of `x` (any shape).
     fn activate(x: FloatTensor<Self>, kind: Activation) -> FloatTensor<Self>;
 
@@ -128,6 +140,19 @@ pub(crate) fn fused_conv_silu(u: Tensor<3>, w: Tensor<2>, bias: Tensor<1>) -> Te
         u.into_dispatch(),
         w.into_dispatch(),
         bias.into_dispatch(),
+    ))
+}
+
+/// The fused cubic table lookup (shapes checked by the caller, [`crate::model`]): `table`
+/// `[R, M]` with nodes `û_j = −1 + (j − 1)·h`, read at every û of `u` `[K]` → `[K, M]`.
+pub(crate) fn table_lookup(table: Tensor<2>, u: Tensor<1>, h: f32) -> Tensor<2> {
+    if !crate::composed::has_fused_kernels(&u.device()) {
+        return crate::composed::table_lookup(table, u, h);
+    }
+    Tensor::from_dispatch(Dispatch::table_lookup(
+        table.into_dispatch(),
+        u.into_dispatch(),
+        h,
     ))
 }
 

@@ -44,6 +44,16 @@ fn conv_dims(u: &[usize], w: &[usize]) -> crate::cpu::conv::ConvDims {
     }
 }
 
+/// The table's sizes from its shape `[R, M]` and node spacing `h`.
+#[cfg(any(feature = "flex", feature = "ndarray"))]
+fn table_dims(shape: &[usize], h: f32) -> crate::cpu::table::TableDims {
+    crate::cpu::table::TableDims {
+        rows: shape[0],
+        m: shape[1],
+        h,
+    }
+}
+
 /// Implements [`crate::ops::SpectralOps`] for a CPU backend (one that implements [`CpuFloat`]).
 #[cfg(any(feature = "flex", feature = "ndarray"))]
 macro_rules! impl_cpu_spectral_ops {
@@ -106,6 +116,32 @@ macro_rules! impl_cpu_spectral_ops {
                     Self::tensor(g.w, wd),
                     Self::tensor(g.bias, Self::dims(&bias)),
                 )
+            }
+
+            fn table_lookup(
+                table: FloatTensor<Self>,
+                u: FloatTensor<Self>,
+                h: f32,
+            ) -> FloatTensor<Self> {
+                let dims = table_dims(&Self::dims(&table), h);
+                let y = Self::with_values([&table, &u], |[table, u]| {
+                    $crate::cpu::table::lookup_forward(dims, table, u)
+                });
+                Self::tensor(y, vec![Self::dims(&u)[0], dims.m])
+            }
+
+            fn table_lookup_backward(
+                table: FloatTensor<Self>,
+                u: FloatTensor<Self>,
+                h: f32,
+                grad: FloatTensor<Self>,
+            ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+                let (shape, ushape) = (Self::dims(&table), Self::dims(&u));
+                let dims = table_dims(&shape, h);
+                let (gt, gu) = Self::with_values([&table, &u, &grad], |[table, u, grad]| {
+                    $crate::cpu::table::lookup_backward(dims, table, u, grad)
+                });
+                (Self::tensor(gt, shape), Self::tensor(gu, ushape))
             }
 
             fn activate(x: FloatTensor<Self>, kind: $crate::ops::Activation) -> FloatTensor<Self> {

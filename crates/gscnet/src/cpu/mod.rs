@@ -35,6 +35,7 @@ pub mod activation;
 pub mod conv;
 mod math;
 pub mod scan;
+pub mod table;
 
 /// Gaussians per rayon task: large enough to amortise scheduling, small enough to balance.
 pub(crate) const BLOCK: usize = 256;

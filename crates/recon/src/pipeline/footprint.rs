@@ -271,7 +271,11 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
             let m = &c.spectral.stage2.curve_model;
             let depth = m.depth.max(1);
             let params = m.width.saturating_mul(m.width).saturating_mul(16 * depth);
-            let nodes = if m.table_size == 0 { k } else { m.table_size };
+            let nodes = if m.table_size == 0 {
+                k
+            } else {
+                m.table_size + 2
+            };
             let acts = nodes
                 .saturating_mul(channels)
                 .saturating_mul(m.width)
