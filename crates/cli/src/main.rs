@@ -93,9 +93,25 @@ enum Command {
     Export(export::Args),
 }
 
+/// Every command runs on a worker of the CPU's pool ([`prism_recon::device::on_cpu_workers`]).
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = match cli.command {
+    let result = prism_recon::device::on_cpu_workers(|| run(cli));
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", describe(&e));
+            // 128 + SIGINT, as a shell reports a process ended by Ctrl-C.
+            match e.downcast_ref::<prism_recon::Error>() {
+                Some(prism_recon::Error::Interrupted { .. }) => ExitCode::from(130),
+                _ => ExitCode::FAILURE,
+            }
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
         Command::Simulate(args) => simulate::run(args),
         Command::Info(args) => info::run(args),
         Command::Recon(args) => recon::run_cmd(args),
@@ -108,17 +124,6 @@ fn main() -> ExitCode {
         Command::Export(args) => export::run(args),
         Command::Import(args) => import::run(args),
         Command::Axis(args) => axis::run(args),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {}", describe(&e));
-            // 128 + SIGINT, as a shell reports a process ended by Ctrl-C.
-            match e.downcast_ref::<prism_recon::Error>() {
-                Some(prism_recon::Error::Interrupted { .. }) => ExitCode::from(130),
-                _ => ExitCode::FAILURE,
-            }
-        }
     }
 }
 

@@ -192,7 +192,9 @@ pub fn reconstruct(
                         stop: Some(&observer.stop),
                     }),
                 };
-                pipeline::run(&config, &scene, dir, &options)
+                prism_recon::device::on_cpu_workers(|| {
+                    pipeline::run(&config, &scene, dir, &options)
+                })
             });
             while !work.is_finished() {
                 if Python::attach(|py| py.check_signals().is_err()) {
