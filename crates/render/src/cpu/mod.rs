@@ -102,8 +102,8 @@ impl GaussianSlices<'_> {
     }
 }
 
-/// One Gaussian's rows of the gradient buffers a backward pass writes: mean (3), scale (3),
-/// rotation (4), densities (M).
+/// A group of consecutive Gaussians' rows of the gradient buffers a backward pass writes:
+/// mean (3), scale (3), rotation (4), densities (M) each.
 pub(crate) struct GradRow<'a> {
     mean: &'a mut [f32],
     scale: &'a mut [f32],
@@ -112,9 +112,15 @@ pub(crate) struct GradRow<'a> {
 }
 
 impl GradRow<'_> {
-    /// Add `geo` and the density gradients `scale · dens[c]` (f64, rounded to f32), unless any of
-    /// them is not finite (then the row is left as it is); whether they were added.
-    pub(crate) fn add(&mut self, geo: &GeomGrad, scale: f64, dens: &[f64]) -> bool {
+    /// Number of Gaussians in the group.
+    pub(crate) fn len(&self) -> usize {
+        self.mean.len() / 3
+    }
+
+    /// Add `geo` and the density gradients `scale · dens[c]` (f64, rounded to f32) to the group's
+    /// `j`-th Gaussian, unless any of them is not finite (then its row is left as it is); whether
+    /// they were added.
+    pub(crate) fn add(&mut self, j: usize, geo: &GeomGrad, scale: f64, dens: &[f64]) -> bool {
         let finite = geo
             .mean
             .iter()
@@ -126,33 +132,35 @@ impl GradRow<'_> {
             return false;
         }
         for q in 0..3 {
-            self.mean[q] += geo.mean[q] as f32;
-            self.scale[q] += geo.scale[q] as f32;
+            self.mean[3 * j + q] += geo.mean[q] as f32;
+            self.scale[3 * j + q] += geo.scale[q] as f32;
         }
         for q in 0..4 {
-            self.rotation[q] += geo.quat[q] as f32;
+            self.rotation[4 * j + q] += geo.quat[q] as f32;
         }
-        for (o, d) in self.densities.iter_mut().zip(dens) {
+        let m = dens.len();
+        for (o, d) in self.densities[m * j..m * (j + 1)].iter_mut().zip(dens) {
             *o += (scale * d) as f32;
         }
         true
     }
 }
 
-/// The per-Gaussian rows of a backward pass's gradient buffers (`[K, 3]`, `[K, 3]`, `[K, 4]`,
-/// `[K, m]`), for one task per Gaussian.
+/// The rows of a backward pass's gradient buffers (`[K, 3]`, `[K, 3]`, `[K, 4]`, `[K, m]`) in
+/// groups of `per` consecutive Gaussians (the last group may be shorter), one task per group.
 pub(crate) fn grad_rows<'a>(
     means: &'a mut [f32],
     scales: &'a mut [f32],
     rotations: &'a mut [f32],
     densities: &'a mut [f32],
     m: usize,
+    per: usize,
 ) -> impl IndexedParallelIterator<Item = GradRow<'a>> {
     means
-        .par_chunks_mut(3)
-        .zip(scales.par_chunks_mut(3))
-        .zip(rotations.par_chunks_mut(4))
-        .zip(densities.par_chunks_mut(m))
+        .par_chunks_mut(3 * per)
+        .zip(scales.par_chunks_mut(3 * per))
+        .zip(rotations.par_chunks_mut(4 * per))
+        .zip(densities.par_chunks_mut(m * per))
         .map(|(((mean, scale), rotation), densities)| GradRow {
             mean,
             scale,

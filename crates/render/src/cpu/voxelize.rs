@@ -436,7 +436,7 @@ pub fn voxelize_backward(
         rotations,
         densities,
     } = &mut total;
-    grad_rows(means, scales, rotations, densities, m)
+    grad_rows(means, scales, rotations, densities, m, 1)
         .enumerate()
         .with_min_len(16)
         .for_each_init(
@@ -452,7 +452,7 @@ pub fn voxelize_backward(
                 let p = &sum[m + 3..m + 9];
                 let sum_dd = [[p[0], p[1], p[2]], [p[1], p[3], p[4]], [p[2], p[4], p[5]]];
                 let geo = voxel_backward(&g.geom(i), sum_d, &sum_dd);
-                row.add(&geo, 1.0, &sum[..m]);
+                row.add(0, &geo, 1.0, &sum[..m]);
             },
         );
     total

@@ -3,24 +3,44 @@
 
 use super::*;
 
-/// Per-view data of one Gaussian in the local-affine (EWA) approximation.
+/// Per-view data of one Gaussian in the local-affine (EWA) approximation (with
+/// `T = `[`F64x4`], of four, one per lane).
 ///
 /// The image of the Gaussian is `ρ · μ · exp(−½ (x − mean)ᵀ Σ₂D⁻¹ (x − mean))` with `x` the pixel
 /// centre in pixels, `μ = √(2π / (r̂ᵀ Σ_c⁻¹ r̂))` the exact line integral of the unit-density
 /// Gaussian along the ray through its centre (`r̂` the unit direction from the source to the
 /// centre, or the viewing axis for parallel beam).
 #[derive(Clone, Copy, Debug)]
-pub struct Splat {
+pub struct Splat<T = f64> {
     /// Projected centre (column, row) in pixels, screen offset included.
-    pub mean: [f64; 2],
+    pub mean: [T; 2],
     /// `Σ₂D⁻¹` in factored form.
-    pub conic: Quad2,
+    pub conic: Quad2<T>,
     /// `Σ₂D⁻¹` as a matrix `[a, b, c]` (for the backward pass).
-    pub conic_mat: [f64; 3],
+    pub conic_mat: [T; 3],
     /// Integration factor μ (length units).
-    pub mu: f64,
+    pub mu: T,
     /// Half-extent of the cut-off ellipse's bounding box (pixels): `cutoff · √Σ₂D,ii`.
-    pub half_extent: [f64; 2],
+    pub half_extent: [T; 2],
+}
+
+impl Splat<F64x4> {
+    /// The splat in lane `j`.
+    #[inline(always)]
+    pub fn lane(&self, j: usize) -> Splat {
+        let at = |v: F64x4| v.0[j];
+        Splat {
+            mean: self.mean.map(at),
+            conic: Quad2 {
+                a: at(self.conic.a),
+                beta: at(self.conic.beta),
+                gamma: at(self.conic.gamma),
+            },
+            conic_mat: self.conic_mat.map(at),
+            mu: at(self.mu),
+            half_extent: self.half_extent.map(at),
+        }
+    }
 }
 
 /// Internals of [`splat`] kept for its backward pass.
@@ -28,81 +48,111 @@ pub struct Splat {
 /// Nothing 3×3 is multiplied out: with `A = W R` the Gaussian's axes in the camera frame,
 /// `Σ₂D = B diag(s²) Bᵀ` with `B = J A` (2×3), and `κ = r̂ᵀ Σ_c⁻¹ r̂ = Σ_j c_j² / s_j²` with
 /// `c = Aᵀ r̂`.
-struct SplatState {
-    f: Factors,
+struct SplatState<T> {
+    f: Factors<T>,
     /// `A = W R`.
-    axes: M3,
+    axes: [[T; 3]; 3],
     /// Rows of `B = J A`.
-    b: [V3; 2],
+    b: [[T; 3]; 2],
     /// `c = Aᵀ r̂`.
-    c: V3,
+    c: [T; 3],
     /// Centre in camera coordinates.
-    t: V3,
+    t: [T; 3],
     /// 2×3 Jacobian of the projection at `t`.
-    jac: [[f64; 3]; 2],
-    r_hat: V3,
-    kappa: f64,
-    splat: Splat,
+    jac: [[T; 3]; 2],
+    r_hat: [T; 3],
+    kappa: T,
+    splat: Splat<T>,
 }
 
-fn splat_state(
-    g: &GaussianGeom,
+/// A camera's numbers in every lane.
+struct CameraLanes<T> {
+    rotation: [[T; 3]; 3],
+    translation: [T; 3],
+    fx: T,
+    fy: T,
+    cx: T,
+    cy: T,
+}
+
+impl<T: Real> CameraLanes<T> {
+    #[inline(always)]
+    fn new(cam: &Camera) -> Self {
+        Self {
+            rotation: cam.rotation.map(|r| r.map(T::splat)),
+            translation: cam.translation.map(T::splat),
+            fx: T::splat(cam.fx),
+            fy: T::splat(cam.fy),
+            cx: T::splat(cam.cx),
+            cy: T::splat(cam.cy),
+        }
+    }
+
+    /// [`Camera::to_camera`], the same operations.
+    #[inline(always)]
+    fn to_camera(&self, p: [T; 3]) -> [T; 3] {
+        let (r, t) = (&self.rotation, &self.translation);
+        std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i])
+    }
+}
+
+#[inline(always)]
+fn splat_state<T: Real>(
+    g: &GaussianGeom<T>,
     cam: &Camera,
-    screen_offset: [f64; 2],
+    screen_offset: [T; 2],
     cutoff: f64,
     near: f64,
-) -> Option<SplatState> {
-    let f = factors(g)?;
-    let axes = mat_mul(&cam.rotation, &f.rot);
-    let t = cam.to_camera(g.mean);
+) -> (SplatState<T>, T::Mask) {
+    let (f, mut ok) = factors_masked(g);
+    let cl = CameraLanes::<T>::new(cam);
+    let (zero, one) = (T::splat(0.0), T::splat(1.0));
+    let axes = mat_mul(&cl.rotation, &f.rot);
+    let t = cl.to_camera(g.mean);
+    let (fx, fy) = (cl.fx, cl.fy);
     let (jac, r_hat, proj) = match cam.projection {
         Projection::Cone => {
-            if t[2].partial_cmp(&near) != Some(std::cmp::Ordering::Greater) {
-                return None;
-            }
-            let iz = 1.0 / t[2];
+            ok = ok & t[2].gt(T::splat(near));
+            let iz = one / t[2];
             let jac = [
-                [cam.fx * iz, 0.0, -cam.fx * t[0] * iz * iz],
-                [0.0, cam.fy * iz, -cam.fy * t[1] * iz * iz],
+                [fx * iz, zero, -fx * t[0] * iz * iz],
+                [zero, fy * iz, -fy * t[1] * iz * iz],
             ];
             let len = dot(t, t).sqrt();
             let r_hat = [t[0] / len, t[1] / len, t[2] / len];
-            (
-                jac,
-                r_hat,
-                [cam.fx * t[0] * iz + cam.cx, cam.fy * t[1] * iz + cam.cy],
-            )
+            (jac, r_hat, [fx * t[0] * iz + cl.cx, fy * t[1] * iz + cl.cy])
         }
         Projection::Parallel => (
-            [[cam.fx, 0.0, 0.0], [0.0, cam.fy, 0.0]],
-            [0.0, 0.0, 1.0],
-            [cam.fx * t[0] + cam.cx, cam.fy * t[1] + cam.cy],
+            [[fx, zero, zero], [zero, fy, zero]],
+            [zero, zero, one],
+            [fx * t[0] + cl.cx, fy * t[1] + cl.cy],
         ),
     };
     let c = mat_t_vec(&axes, r_hat);
-    let kappa = (0..3).map(|j| c[j] * c[j] * f.inv_s2[j]).sum::<f64>();
-    let mu = (2.0 * std::f64::consts::PI / kappa).sqrt();
-    if !(kappa > 0.0 && mu.is_finite()) {
-        return None;
-    }
+    let kappa = c[0] * c[0] * f.inv_s2[0] + c[1] * c[1] * f.inv_s2[1] + c[2] * c[2] * f.inv_s2[2];
+    let mu = (T::splat(2.0 * std::f64::consts::PI) / kappa).sqrt();
+    ok = ok & kappa.gt(zero) & mu.is_finite();
     // Σ₂D = B diag(s²) Bᵀ, B = J A.
     let b = [mat_t_vec(&axes, jac[0]), mat_t_vec(&axes, jac[1])];
-    let form = |p: V3, q: V3| (0..3).map(|j| p[j] * q[j] * f.s2[j]).sum::<f64>();
+    let form = |p: [T; 3], q: [T; 3]| {
+        p[0] * q[0] * f.s2[0] + p[1] * q[1] * f.s2[1] + p[2] * q[2] * f.s2[2]
+    };
     let s00 = form(b[0], b[0]);
     let s01 = form(b[0], b[1]);
     let s11 = form(b[1], b[1]);
     let det = s00 * s11 - s01 * s01;
-    if !(det.is_finite() && det > 0.0 && s00 > 0.0 && s11 > 0.0) {
-        return None;
-    }
+    ok = ok & det.is_finite() & det.gt(zero) & s00.gt(zero) & s11.gt(zero);
     let conic_mat = [s11 / det, -s01 / det, s00 / det];
-    let conic = Quad2::new([[conic_mat[0], conic_mat[1]], [conic_mat[1], conic_mat[2]]])?;
+    let (conic, conic_ok) =
+        Quad2::new_masked([[conic_mat[0], conic_mat[1]], [conic_mat[1], conic_mat[2]]]);
+    ok = ok & conic_ok;
     let mean = [proj[0] + screen_offset[0], proj[1] + screen_offset[1]];
+    let cutoff = T::splat(cutoff);
     let half_extent = [cutoff * s00.sqrt(), cutoff * s11.sqrt()];
-    if !(mean.iter().chain(half_extent.iter()).all(|v| v.is_finite())) {
-        return None;
+    for v in mean.into_iter().chain(half_extent) {
+        ok = ok & v.is_finite();
     }
-    Some(SplatState {
+    let state = SplatState {
         f,
         axes,
         b,
@@ -118,7 +168,22 @@ fn splat_state(
             mu,
             half_extent,
         },
-    })
+    };
+    (state, ok)
+}
+
+/// The affine splat of a Gaussian in one view (or of four, in lanes), and whether it is valid:
+/// not degenerate and, for cone beam, its centre in front of the near plane `z_c > near`.
+#[inline(always)]
+pub fn splat_masked<T: Real>(
+    g: &GaussianGeom<T>,
+    cam: &Camera,
+    screen_offset: [T; 2],
+    cutoff: f64,
+    near: f64,
+) -> (Splat<T>, T::Mask) {
+    let (state, ok) = splat_state(g, cam, screen_offset, cutoff, near);
+    (state.splat, ok)
 }
 
 /// The affine splat of a Gaussian in one view, or `None` if it is degenerate or (cone beam)
@@ -130,17 +195,18 @@ pub fn splat(
     cutoff: f64,
     near: f64,
 ) -> Option<Splat> {
-    splat_state(g, cam, screen_offset, cutoff, near).map(|s| s.splat)
+    let (s, ok) = splat_masked(g, cam, screen_offset, cutoff, near);
+    ok.then_some(s)
 }
 
 /// Loss gradients with respect to one splat's image-space quantities.
 #[derive(Clone, Copy, Debug, Default)]
-pub struct SplatGrad {
+pub struct SplatGrad<T = f64> {
     /// `∂L/∂mean` (pixels⁻¹ · loss).
-    pub mean: [f64; 2],
+    pub mean: [T; 2],
     /// `∂L/∂Σ₂D⁻¹` in the full-matrix convention `[[g_a, g_b], [g_b, g_c]]`, given as `[g_a, g_b, g_c]`.
-    pub conic: [f64; 3],
-    pub mu: f64,
+    pub conic: [T; 3],
+    pub mu: T,
 }
 
 /// Backward of [`splat`]: gradients with respect to the Gaussian's geometry, and the screen
@@ -169,10 +235,28 @@ pub fn splat_backward_with(
     near: f64,
     grad: impl FnOnce(&Splat) -> SplatGrad,
 ) -> Option<(GeomGrad, SplatGrad)> {
-    let st = splat_state(g, cam, screen_offset, cutoff, near)?;
-    let grad = &grad(&st.splat);
-    let w = &cam.rotation;
+    let (geo, grad, ok) = splat_backward_masked(g, cam, screen_offset, cutoff, near, grad);
+    ok.then_some((geo, grad))
+}
+
+/// [`splat_backward_with`] for one Gaussian or four in lanes: the geometry gradient, the
+/// [`SplatGrad`] it chained, and whether the splat is valid (where it is not, the values are
+/// meaningless).
+#[inline(always)]
+pub fn splat_backward_masked<T: Real>(
+    g: &GaussianGeom<T>,
+    cam: &Camera,
+    screen_offset: [T; 2],
+    cutoff: f64,
+    near: f64,
+    grad: impl FnOnce(&Splat<T>) -> SplatGrad<T>,
+) -> (GeomGrad<T>, SplatGrad<T>, T::Mask) {
+    let (st, ok) = splat_state(g, cam, screen_offset, cutoff, near);
+    let grad = grad(&st.splat);
+    let cl = CameraLanes::<T>::new(cam);
+    let w = &cl.rotation;
     let jac = &st.jac;
+    let two = T::splat(2.0);
     let [ca, cb, cc] = st.splat.conic_mat;
     let [ga, gb, gc] = grad.conic;
     // G_Σ2D = −C G_C C.
@@ -190,27 +274,27 @@ pub fn splat_backward_with(
             -(cg[1][0] * cb + cg[1][1] * cc),
         ],
     ];
-    let g2s = 0.5 * (g2[0][1] + g2[1][0]);
+    let g2s = T::splat(0.5) * (g2[0][1] + g2[1][0]);
     let g2 = [[g2[0][0], g2s], [g2s, g2[1][1]]];
     let f = &st.f;
     let (a, b, c) = (&st.axes, &st.b, st.c);
     // Σ₂D = B D Bᵀ (D = diag(s²)): G_B = 2 G_Σ2D B D, G_D,j = Σ_ab G_ab B_aj B_bj.
-    let g_b: [V3; 2] = std::array::from_fn(|r| {
-        std::array::from_fn(|j| 2.0 * (g2[r][0] * b[0][j] + g2[r][1] * b[1][j]) * f.s2[j])
+    let g_b: [[T; 3]; 2] = std::array::from_fn(|r| {
+        std::array::from_fn(|j| two * (g2[r][0] * b[0][j] + g2[r][1] * b[1][j]) * f.s2[j])
     });
     // μ = √(2π/κ), κ = Σ_j c_j² s_j⁻²: G_c = 2 g_κ c s⁻², G_{s⁻²} = g_κ c², s⁻² = 1/s².
-    let g_kappa = grad.mu * (-0.5 * st.splat.mu / st.kappa);
-    let g_c: V3 = std::array::from_fn(|j| 2.0 * g_kappa * c[j] * f.inv_s2[j]);
-    let g_scale: V3 = std::array::from_fn(|j| {
+    let g_kappa = grad.mu * (T::splat(-0.5) * st.splat.mu / st.kappa);
+    let g_c: [T; 3] = std::array::from_fn(|j| two * g_kappa * c[j] * f.inv_s2[j]);
+    let g_scale: [T; 3] = std::array::from_fn(|j| {
         let g_s2 = g2[0][0] * b[0][j] * b[0][j]
-            + 2.0 * g2[0][1] * b[0][j] * b[1][j]
+            + two * g2[0][1] * b[0][j] * b[1][j]
             + g2[1][1] * b[1][j] * b[1][j]
             - g_kappa * c[j] * c[j] * f.inv_s2[j] * f.inv_s2[j];
-        2.0 * f.scale[j] * g_s2
+        two * f.scale[j] * g_s2
     });
     // B = J A and c = Aᵀ r̂: G_A = Jᵀ G_B + r̂ G_cᵀ; then A = W R: G_R = Wᵀ G_A.
     let r = st.r_hat;
-    let g_axes: M3 = std::array::from_fn(|i| {
+    let g_axes: [[T; 3]; 3] = std::array::from_fn(|i| {
         std::array::from_fn(|j| jac[0][i] * g_b[0][j] + jac[1][i] * g_b[1][j] + r[i] * g_c[j])
     });
     let g_quat = quat_backward(f.unit_quat, f.quat_norm, &mat_mul(&transpose(w), &g_axes));
@@ -225,22 +309,23 @@ pub fn splat_backward_with(
     ];
     if cam.projection == Projection::Cone {
         // G_J = G_B Aᵀ (2×3).
-        let g_jac: [V3; 2] = [mat_vec(a, g_b[0]), mat_vec(a, g_b[1])];
-        let iz = 1.0 / t[2];
+        let g_jac: [[T; 3]; 2] = [mat_vec(a, g_b[0]), mat_vec(a, g_b[1])];
+        let iz = T::splat(1.0) / t[2];
         let iz2 = iz * iz;
-        let (fx, fy) = (cam.fx, cam.fy);
-        g_t[0] += g_jac[0][2] * (-fx * iz2);
-        g_t[1] += g_jac[1][2] * (-fy * iz2);
-        g_t[2] += g_jac[0][0] * (-fx * iz2)
-            + g_jac[0][2] * (2.0 * fx * t[0] * iz2 * iz)
-            + g_jac[1][1] * (-fy * iz2)
-            + g_jac[1][2] * (2.0 * fy * t[1] * iz2 * iz);
+        let (fx, fy) = (cl.fx, cl.fy);
+        g_t[0] = g_t[0] + g_jac[0][2] * (-fx * iz2);
+        g_t[1] = g_t[1] + g_jac[1][2] * (-fy * iz2);
+        g_t[2] = g_t[2]
+            + (g_jac[0][0] * (-fx * iz2)
+                + g_jac[0][2] * (two * fx * t[0] * iz2 * iz)
+                + g_jac[1][1] * (-fy * iz2)
+                + g_jac[1][2] * (two * fy * t[1] * iz2 * iz));
         // r̂ = t/|t|: G_t += (I − r̂r̂ᵀ) G_r̂ / |t|, G_r̂ = A G_c.
         let g_r = mat_vec(a, g_c);
         let len = dot(t, t).sqrt();
         let along = dot(r, g_r);
         for k in 0..3 {
-            g_t[k] += (g_r[k] - r[k] * along) / len;
+            g_t[k] = g_t[k] + (g_r[k] - r[k] * along) / len;
         }
     }
     let geo = GeomGrad {
@@ -248,5 +333,5 @@ pub fn splat_backward_with(
         scale: g_scale,
         quat: g_quat,
     };
-    Some((geo, *grad))
+    (geo, grad, ok)
 }

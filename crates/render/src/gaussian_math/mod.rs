@@ -2,6 +2,8 @@
 //!
 //! Everything here is a plain `f64` function on plain numbers, so the CPU kernels (and later the
 //! CubeCL port) call the same code for the forward value and for its hand-written derivative.
+//! The factors and the affine splat with its chain rule are generic over [`Real`]: the same
+//! code runs on one Gaussian (`f64`) or on four in lanes ([`F64x4`]), bit for bit alike.
 //!
 //! Conventions:
 //! * a Gaussian is `ρ · exp(−½ (x − p)ᵀ Σ⁻¹ (x − p))` with `Σ = R diag(s²) Rᵀ`, `R = R(q / |q|)`,
@@ -12,15 +14,18 @@
 //! * detector coordinates are pixels with pixel centres at integers (see [`crate::camera`]).
 //!
 //! A Gaussian with a zero or non-finite quaternion, a non-positive or non-finite scale, or a
-//! non-finite mean is *degenerate*: every function returns `None` for it and the kernels skip it,
-//! so it contributes zero to outputs and receives zero gradients.
+//! non-finite mean is *degenerate*: every function returns `None` for it (the lane forms flag it
+//! in their mask) and the kernels skip it, so it contributes zero to outputs and receives zero
+//! gradients.
 
 mod affine;
 mod exact;
+mod real;
 mod voxel;
 
 pub use affine::*;
 pub use exact::*;
+pub use real::*;
 pub use voxel::*;
 
 use crate::camera::{Camera, Projection};
@@ -34,19 +39,19 @@ pub const SQRT_2PI: f64 = 2.506_628_274_631_000_7;
 // ---------------------------------------------------------------------------------------------
 // Small linear algebra.
 
-#[inline]
-pub fn dot(a: V3, b: V3) -> f64 {
+#[inline(always)]
+pub fn dot<T: Real>(a: [T; 3], b: [T; 3]) -> T {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-#[inline]
-pub fn mat_vec(m: &M3, v: V3) -> V3 {
+#[inline(always)]
+pub fn mat_vec<T: Real>(m: &[[T; 3]; 3], v: [T; 3]) -> [T; 3] {
     [dot(m[0], v), dot(m[1], v), dot(m[2], v)]
 }
 
 /// `mᵀ v`.
-#[inline]
-pub fn mat_t_vec(m: &M3, v: V3) -> V3 {
+#[inline(always)]
+pub fn mat_t_vec<T: Real>(m: &[[T; 3]; 3], v: [T; 3]) -> [T; 3] {
     [
         m[0][0] * v[0] + m[1][0] * v[1] + m[2][0] * v[2],
         m[0][1] * v[0] + m[1][1] * v[1] + m[2][1] * v[2],
@@ -54,19 +59,15 @@ pub fn mat_t_vec(m: &M3, v: V3) -> V3 {
     ]
 }
 
-#[inline]
-pub fn mat_mul(a: &M3, b: &M3) -> M3 {
-    let mut out = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in 0..3 {
-            out[i][j] = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
-        }
-    }
-    out
+#[inline(always)]
+pub fn mat_mul<T: Real>(a: &[[T; 3]; 3], b: &[[T; 3]; 3]) -> [[T; 3]; 3] {
+    std::array::from_fn(|i| {
+        std::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j])
+    })
 }
 
-#[inline]
-pub fn transpose(a: &M3) -> M3 {
+#[inline(always)]
+pub fn transpose<T: Copy>(a: &[[T; 3]; 3]) -> [[T; 3]; 3] {
     [
         [a[0][0], a[1][0], a[2][0]],
         [a[0][1], a[1][1], a[2][1]],
@@ -115,63 +116,93 @@ pub fn sym_unpack(p: &[f64; 6]) -> M3 {
 // ---------------------------------------------------------------------------------------------
 // Gaussian shape.
 
-/// One Gaussian's geometry in world coordinates (length units of the scene).
+/// One Gaussian's geometry in world coordinates (length units of the scene); with
+/// `T = `[`F64x4`], four Gaussians' (lane `j` of every value is Gaussian `j`'s).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GaussianGeom {
-    pub mean: V3,
+pub struct GaussianGeom<T = f64> {
+    pub mean: [T; 3],
     /// Standard deviations along the Gaussian's own axes (positive).
-    pub scale: V3,
+    pub scale: [T; 3],
     /// Rotation quaternion `(w, x, y, z)`; need not be normalised.
-    pub quat: [f64; 4],
+    pub quat: [T; 4],
+}
+
+impl GaussianGeom<F64x4> {
+    /// Four Gaussians in lanes: lane `j` is `geom(j)`.
+    #[inline(always)]
+    pub fn lanes(geom: impl Fn(usize) -> GaussianGeom) -> Self {
+        let g: [GaussianGeom; F64_LANES] = std::array::from_fn(geom);
+        Self {
+            mean: F64x4::gather(|j| g[j].mean),
+            scale: F64x4::gather(|j| g[j].scale),
+            quat: F64x4::gather(|j| g[j].quat),
+        }
+    }
 }
 
 /// Gradient of a scalar loss with respect to [`GaussianGeom`].
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct GeomGrad {
-    pub mean: V3,
-    pub scale: V3,
-    pub quat: [f64; 4],
+pub struct GeomGrad<T = f64> {
+    pub mean: [T; 3],
+    pub scale: [T; 3],
+    pub quat: [T; 4],
+}
+
+impl GeomGrad<F64x4> {
+    /// The gradient in lane `j`.
+    #[inline(always)]
+    pub fn lane(&self, j: usize) -> GeomGrad {
+        GeomGrad {
+            mean: self.mean.map(|v| v.0[j]),
+            scale: self.scale.map(|v| v.0[j]),
+            quat: self.quat.map(|v| v.0[j]),
+        }
+    }
 }
 
 /// Rotation matrix of a unit quaternion `(w, x, y, z)`.
-pub fn quat_to_rotation(q: [f64; 4]) -> M3 {
+#[inline(always)]
+pub fn quat_to_rotation<T: Real>(q: [T; 4]) -> [[T; 3]; 3] {
     let [w, x, y, z] = q;
+    let (one, two) = (T::splat(1.0), T::splat(2.0));
     [
         [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
+            one - two * (y * y + z * z),
+            two * (x * y - w * z),
+            two * (x * z + w * y),
         ],
         [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
+            two * (x * y + w * z),
+            one - two * (x * x + z * z),
+            two * (y * z - w * x),
         ],
         [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
+            two * (x * z - w * y),
+            two * (y * z + w * x),
+            one - two * (x * x + y * y),
         ],
     ]
 }
 
 /// `∂L/∂q` for a unit quaternion given `G_R = ∂L/∂R`.
-fn rotation_grad_to_quat(q: [f64; 4], g: &M3) -> [f64; 4] {
+#[inline(always)]
+fn rotation_grad_to_quat<T: Real>(q: [T; 4], g: &[[T; 3]; 3]) -> [T; 4] {
     let [w, x, y, z] = q;
+    let two = T::splat(2.0);
     let gw =
-        2.0 * (-z * g[0][1] + y * g[0][2] + z * g[1][0] - x * g[1][2] - y * g[2][0] + x * g[2][1]);
-    let gx = 2.0
-        * (y * g[0][1] + z * g[0][2] + y * g[1][0] - 2.0 * x * g[1][1] - w * g[1][2]
+        two * (-z * g[0][1] + y * g[0][2] + z * g[1][0] - x * g[1][2] - y * g[2][0] + x * g[2][1]);
+    let gx = two
+        * (y * g[0][1] + z * g[0][2] + y * g[1][0] - two * x * g[1][1] - w * g[1][2]
             + z * g[2][0]
             + w * g[2][1]
-            - 2.0 * x * g[2][2]);
-    let gy = 2.0
-        * (-2.0 * y * g[0][0] + x * g[0][1] + w * g[0][2] + x * g[1][0] + z * g[1][2]
+            - two * x * g[2][2]);
+    let gy = two
+        * (-two * y * g[0][0] + x * g[0][1] + w * g[0][2] + x * g[1][0] + z * g[1][2]
             - w * g[2][0]
             + z * g[2][1]
-            - 2.0 * y * g[2][2]);
-    let gz = 2.0
-        * (-2.0 * z * g[0][0] - w * g[0][1] + x * g[0][2] + w * g[1][0] - 2.0 * z * g[1][1]
+            - two * y * g[2][2]);
+    let gz = two
+        * (-two * z * g[0][0] - w * g[0][1] + x * g[0][2] + w * g[1][0] - two * z * g[1][1]
             + y * g[1][2]
             + x * g[2][0]
             + y * g[2][1]);
@@ -192,55 +223,49 @@ pub struct Shape3 {
     pub scale: V3,
 }
 
-/// The factors of `Σ = R diag(s²) Rᵀ`, validated, without multiplying them out.
+/// The factors of `Σ = R diag(s²) Rᵀ`, without multiplying them out.
 #[derive(Clone, Copy, Debug)]
-struct Factors {
-    rot: M3,
-    unit_quat: [f64; 4],
-    quat_norm: f64,
-    scale: V3,
+struct Factors<T = f64> {
+    rot: [[T; 3]; 3],
+    unit_quat: [T; 4],
+    quat_norm: T,
+    scale: [T; 3],
     /// `s²` and `s⁻²` per axis.
-    s2: V3,
-    inv_s2: V3,
+    s2: [T; 3],
+    inv_s2: [T; 3],
 }
 
-/// [`Factors`] of a Gaussian, or `None` if it is degenerate.
-fn factors(g: &GaussianGeom) -> Option<Factors> {
-    let n2: f64 = g.quat.iter().map(|v| v * v).sum();
-    let n = n2.sqrt();
-    if !(n.is_finite() && n > 1e-12) {
-        return None;
+/// [`Factors`] of a Gaussian, and whether it is not degenerate.
+#[inline(always)]
+fn factors_masked<T: Real>(g: &GaussianGeom<T>) -> (Factors<T>, T::Mask) {
+    let q = g.quat;
+    let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    let (zero, one) = (T::splat(0.0), T::splat(1.0));
+    let mut ok = n.is_finite() & n.gt(T::splat(1e-12));
+    for v in g.mean {
+        ok = ok & v.is_finite();
     }
-    if !g.mean.iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    if !g.scale.iter().all(|s| s.is_finite() && *s > 0.0) {
-        return None;
-    }
-    let unit_quat = [g.quat[0] / n, g.quat[1] / n, g.quat[2] / n, g.quat[3] / n];
     let s2 = g.scale.map(|s| s * s);
-    let inv_s2 = s2.map(|v| 1.0 / v);
-    if !s2
-        .iter()
-        .chain(inv_s2.iter())
-        .all(|v| v.is_finite() && *v > 0.0)
-    {
-        return None;
+    let inv_s2 = s2.map(|v| one / v);
+    for v in g.scale.into_iter().chain(s2).chain(inv_s2) {
+        ok = ok & v.is_finite() & v.gt(zero);
     }
-    Some(Factors {
+    let unit_quat = q.map(|v| v / n);
+    let f = Factors {
         rot: quat_to_rotation(unit_quat),
         unit_quat,
         quat_norm: n,
         scale: g.scale,
         s2,
         inv_s2,
-    })
+    };
+    (f, ok)
 }
 
 /// Covariance and precision of a Gaussian, or `None` if it is degenerate.
 pub fn shape3(g: &GaussianGeom) -> Option<Shape3> {
-    let f = factors(g)?;
-    Some(Shape3 {
+    let (f, ok) = factors_masked(g);
+    ok.then_some(Shape3 {
         cov: sandwich_diag(&f.rot, f.s2),
         prec: sandwich_diag(&f.rot, f.inv_s2),
         rot: f.rot,
@@ -251,7 +276,8 @@ pub fn shape3(g: &GaussianGeom) -> Option<Shape3> {
 }
 
 /// `∂L/∂q` for the raw quaternion `q = |q| · u` given `G_R = ∂L/∂R(u)`.
-fn quat_backward(unit_quat: [f64; 4], quat_norm: f64, g_rot: &M3) -> [f64; 4] {
+#[inline(always)]
+fn quat_backward<T: Real>(unit_quat: [T; 4], quat_norm: T, g_rot: &[[T; 3]; 3]) -> [T; 4] {
     let g_unit = rotation_grad_to_quat(unit_quat, g_rot);
     let u = unit_quat;
     let radial = g_unit[0] * u[0] + g_unit[1] * u[1] + g_unit[2] * u[2] + g_unit[3] * u[3];
@@ -288,22 +314,30 @@ pub fn shape3_backward(sh: &Shape3, g_cov: &M3, g_prec: &M3) -> (V3, [f64; 4]) {
 /// `(a, β = b/a, γ = c − b²/a)` so that `dᵀCd = a (dx + β dy)² + γ dy²` — a sum of two
 /// non-negative terms, accurate even for needle-thin footprints (eigenvalue ratio 1e8).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Quad2 {
-    pub a: f64,
-    pub beta: f64,
-    pub gamma: f64,
+pub struct Quad2<T = f64> {
+    pub a: T,
+    pub beta: T,
+    pub gamma: T,
+}
+
+impl<T: Real> Quad2<T> {
+    /// Factor `C`, and whether it is positive definite.
+    #[inline(always)]
+    pub fn new_masked(c: [[T; 2]; 2]) -> (Self, T::Mask) {
+        let a = c[0][0];
+        let beta = c[0][1] / a;
+        let gamma = c[1][1] - c[0][1] * beta;
+        let zero = T::splat(0.0);
+        let ok = a.is_finite() & a.gt(zero) & gamma.is_finite() & gamma.gt(zero) & beta.is_finite();
+        (Self { a, beta, gamma }, ok)
+    }
 }
 
 impl Quad2 {
     /// Factor `C`, or `None` if it is not positive definite.
     pub fn new(c: [[f64; 2]; 2]) -> Option<Self> {
-        let a = c[0][0];
-        if !(a.is_finite() && a > 0.0) {
-            return None;
-        }
-        let beta = c[0][1] / a;
-        let gamma = c[1][1] - c[0][1] * beta;
-        (gamma.is_finite() && gamma > 0.0 && beta.is_finite()).then_some(Self { a, beta, gamma })
+        let (q, ok) = Self::new_masked(c);
+        ok.then_some(q)
     }
 
     #[inline]

@@ -418,10 +418,10 @@ fn factored_quadratic_forms_match_the_matrix_and_survive_needles() {
     assert!(Quad2::new([[1.0, 2.0], [2.0, 1.0]]).is_none());
 }
 
-#[test]
-fn degenerate_gaussians_are_rejected() {
-    let cam = cone_camera(8, 8);
-    let bad = [
+/// Gaussians every function must reject: zero quaternion, zero, negative and infinite scales,
+/// a NaN mean, and (cone beam) a centre behind the source.
+fn degenerate_gaussians() -> [GaussianGeom; 6] {
+    [
         GaussianGeom {
             quat: [0.0; 4],
             ..aniso()
@@ -445,8 +445,14 @@ fn degenerate_gaussians_are_rejected() {
         GaussianGeom {
             mean: [600.0, 0.0, 0.0],
             ..aniso()
-        }, // behind the source
-    ];
+        },
+    ]
+}
+
+#[test]
+fn degenerate_gaussians_are_rejected() {
+    let cam = cone_camera(8, 8);
+    let bad = degenerate_gaussians();
     for g in bad {
         assert!(splat(&g, &cam, [0.0; 2], 3.0, 1e-3).is_none(), "{g:?}");
         let gg = splat_backward(
@@ -462,5 +468,65 @@ fn degenerate_gaussians_are_rejected() {
             },
         );
         assert_eq!(gg, GeomGrad::default());
+    }
+}
+
+#[test]
+fn lanes_compute_each_gaussian_bit_for_bit_as_alone() {
+    // Four Gaussians in F64x4 lanes run the scalar operations lane by lane: every value of the
+    // splat and of its chain rule equals, to the bit, the one-Gaussian result, and a degenerate
+    // (or behind-the-source) lane is flagged without touching its neighbours.
+    let good = |j: usize| GaussianGeom {
+        mean: [3.0 - j as f64, -2.0 + 0.7 * j as f64, 4.0 + 0.3 * j as f64],
+        scale: [2.0 + 0.5 * j as f64, 5.0, 3.5 - 0.4 * j as f64],
+        quat: [0.8, 0.3 + 0.1 * j as f64, -0.5, 0.2],
+    };
+    let bad = degenerate_gaussians();
+    let offsets = |j: usize| [0.25 * j as f64, -0.1];
+    let image_grad = |sp: &Splat| SplatGrad {
+        mean: [0.3 * sp.mu, -0.2],
+        conic: [sp.conic_mat[0], -0.5, 0.7 * sp.mu],
+        mu: 1.3,
+    };
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    for cam in [cone_camera(32, 32), parallel_camera(32, 32)] {
+        for (slot, b) in bad.iter().enumerate() {
+            let slot = slot % F64_LANES;
+            let geoms: [GaussianGeom; F64_LANES] =
+                std::array::from_fn(|j| if j == slot { *b } else { good(j) });
+            let lanes = GaussianGeom::lanes(|j| geoms[j]);
+            let off = F64x4::gather(offsets);
+            let (sp, ok) = splat_masked(&lanes, &cam, off, 3.0, 1e-3);
+            let lane_grad = |sp: &Splat<F64x4>| {
+                let g: [SplatGrad; F64_LANES] = std::array::from_fn(|j| image_grad(&sp.lane(j)));
+                SplatGrad {
+                    mean: F64x4::gather(|j| g[j].mean),
+                    conic: F64x4::gather(|j| g[j].conic),
+                    mu: F64x4::from_fn(|j| g[j].mu),
+                }
+            };
+            let (geo, _, ok_back) = splat_backward_masked(&lanes, &cam, off, 3.0, 1e-3, lane_grad);
+            assert_eq!(ok, ok_back);
+            for (j, g) in geoms.iter().enumerate() {
+                let alone = splat(g, &cam, offsets(j), 3.0, 1e-3);
+                assert_eq!(ok.0[j], alone.is_some(), "lane {j}, bad slot {slot}");
+                let Some(alone) = alone else { continue };
+                let lane = sp.lane(j);
+                let flat = |s: &Splat| {
+                    let q = s.conic;
+                    let mut v = vec![s.mu, q.a, q.beta, q.gamma];
+                    v.extend(s.mean.iter().chain(&s.conic_mat).chain(&s.half_extent));
+                    v
+                };
+                assert_eq!(bits(&flat(&lane)), bits(&flat(&alone)), "splat, lane {j}");
+                let (want, _) =
+                    splat_backward_with(g, &cam, offsets(j), 3.0, 1e-3, image_grad).unwrap();
+                assert_eq!(
+                    bits(&pack(&geo.lane(j))),
+                    bits(&pack(&want)),
+                    "chain, lane {j}"
+                );
+            }
+        }
     }
 }

@@ -30,7 +30,6 @@ pub(super) fn backward(
     let cut2 = opts.cutoff * opts.cutoff;
     for (v, cam) in cams.iter().enumerate() {
         let det = Detector::new(cam);
-        let near = opts.near_fraction * cam.sdd;
         let gview = &grad[v * m * plane..(v + 1) * m * plane];
         let prep = prepare(g, screen, prepared, v, cam, opts);
         let band = Band::new(&det, 0, det.rows);
@@ -59,90 +58,156 @@ pub(super) fn backward(
             screen: screens,
         } = &mut total;
         let screen_view = &mut screens[2 * v * k..2 * (v + 1) * k];
-        grad_rows(means, scales, rotations, densities, m)
-            .zip(screen_view.par_chunks_mut(2))
+        let inputs = ViewInputs {
+            g,
+            screen,
+            view: v,
+            cam,
+            opts,
+        };
+        // Groups of F64_LANES Gaussians: each one's pixel sums, then (affine) the group's chain
+        // rule at once in f64 lanes.
+        grad_rows(means, scales, rotations, densities, m, F64_LANES)
+            .zip(screen_view.par_chunks_mut(2 * F64_LANES))
             .enumerate()
-            .with_min_len(64)
+            .with_min_len(16)
             .for_each_init(
-                || (vec![0.0f64; stride], vec![[0.0f32; HALF]; m]),
-                |(sum, lanes), (i, (mut row, out_screen))| {
-                    sum.fill(0.0);
-                    let dens = &g.densities[m * i..m * i + m];
+                || (vec![0.0f64; F64_LANES * stride], vec![[0.0f32; HALF]; m]),
+                |(sums, lanes), (group, (mut rows, out_screen))| {
+                    let first = group * F64_LANES;
+                    let n = rows.len();
+                    sums.fill(0.0);
+                    let dens = |j: usize| &g.densities[m * (first + j)..m * (first + j + 1)];
                     match &prep {
                         Prepared::Affine(splats) => {
-                            let Some(s) = &splats[i] else { return };
-                            splat_backward(s, cut2 as f32, upstream, dens, lanes, sum);
+                            let mut live = [false; F64_LANES];
+                            for j in 0..n {
+                                let Some(s) = &splats[first + j] else {
+                                    continue;
+                                };
+                                let sum = &mut sums[j * stride..(j + 1) * stride];
+                                splat_backward(s, cut2 as f32, upstream, dens(j), lanes, sum);
+                                live[j] = true;
+                            }
+                            if !live.contains(&true) {
+                                return;
+                            }
+                            let group = Group {
+                                first,
+                                live,
+                                sums,
+                                stride,
+                            };
+                            chain_affine(inputs, &group, &mut rows, out_screen);
                         }
                         Prepared::Exact(splats) => {
-                            let Some((s, px)) = &splats[i] else { return };
-                            exact_rays(cam, s, px, px[2]..px[3], cut2, |x, y, o, d, len, _| {
-                                let gc = |c: usize| gv[band.at(c, x, y)] as f64;
-                                let w: f64 = (0..m).map(|c| dens[c] as f64 * gc(c)).sum();
-                                let (val, g_c, g_p) =
-                                    line_integral_backward(&s.ray_gaussian, o, d, len, w);
-                                for c in 0..m {
-                                    sum[c] += gc(c) * val;
+                            for j in 0..n {
+                                let i = first + j;
+                                let Some((s, px)) = &splats[i] else { continue };
+                                let sum = &mut sums[j * stride..(j + 1) * stride];
+                                let dens = dens(j);
+                                exact_rays(cam, s, px, px[2]..px[3], cut2, |x, y, o, d, len, _| {
+                                    let gc = |c: usize| gv[band.at(c, x, y)] as f64;
+                                    let w: f64 = (0..m).map(|c| dens[c] as f64 * gc(c)).sum();
+                                    let (val, g_c, g_p) =
+                                        line_integral_backward(&s.ray_gaussian, o, d, len, w);
+                                    for c in 0..m {
+                                        sum[c] += gc(c) * val;
+                                    }
+                                    for q in 0..3 {
+                                        sum[m + q] += g_c[q];
+                                    }
+                                    let gp = sym_pack(&g_p);
+                                    for q in 0..6 {
+                                        sum[m + 3 + q] += gp[q];
+                                    }
+                                });
+                                let g_centre = [sum[m], sum[m + 1], sum[m + 2]];
+                                let gp: [f64; 6] = std::array::from_fn(|q| sum[m + 3 + q]);
+                                let (geo, g_screen) = exact_splat_backward(
+                                    &g.geom(i),
+                                    cam,
+                                    inputs.offset(i),
+                                    g_centre,
+                                    &sym_unpack(&gp),
+                                );
+                                if !g_screen.iter().all(|x| x.is_finite())
+                                    || !rows.add(j, &geo, 1.0, &sum[..m])
+                                {
+                                    continue;
                                 }
-                                for q in 0..3 {
-                                    sum[m + q] += g_c[q];
-                                }
-                                let gp = sym_pack(&g_p);
-                                for q in 0..6 {
-                                    sum[m + 3 + q] += gp[q];
-                                }
-                            });
+                                out_screen[2 * j] = g_screen[0] as f32;
+                                out_screen[2 * j + 1] = g_screen[1] as f32;
+                            }
                         }
                     }
-                    let geom: GaussianGeom = g.geom(i);
-                    let off = screen_offset(screen, k, v, i);
-                    // ∂L/∂ρ_c = dens_scale · S_c.
-                    let (geo, dens_scale, g_screen) = match &prep {
-                        Prepared::Affine(_) => {
-                            let mut mu = 0.0;
-                            let image_grad = |sp: &gm::Splat| {
-                                mu = sp.mu;
-                                let [ca, cb, cc] = sp.conic_mat;
-                                let mu = sp.mu;
-                                let (wx, wy) = (sum[m], sum[m + 1]);
-                                SplatGrad {
-                                    mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
-                                    conic: [
-                                        -0.5 * mu * sum[m + 2],
-                                        -0.5 * mu * sum[m + 3],
-                                        -0.5 * mu * sum[m + 4],
-                                    ],
-                                    mu: (0..m).map(|c| dens[c] as f64 * sum[c]).sum(),
-                                }
-                            };
-                            let Some((geo, sg)) = gm::splat_backward_with(
-                                &geom,
-                                cam,
-                                off,
-                                opts.cutoff,
-                                near,
-                                image_grad,
-                            ) else {
-                                return;
-                            };
-                            (geo, mu, sg.mean)
-                        }
-                        Prepared::Exact(_) => {
-                            let g_centre = [sum[m], sum[m + 1], sum[m + 2]];
-                            let gp: [f64; 6] = std::array::from_fn(|q| sum[m + 3 + q]);
-                            let (geo, g_screen) =
-                                exact_splat_backward(&geom, cam, off, g_centre, &sym_unpack(&gp));
-                            (geo, 1.0, g_screen)
-                        }
-                    };
-                    if !g_screen.iter().all(|x| x.is_finite())
-                        || !row.add(&geo, dens_scale, &sum[..m])
-                    {
-                        return;
-                    }
-                    out_screen[0] = g_screen[0] as f32;
-                    out_screen[1] = g_screen[1] as f32;
                 },
             );
     }
     total
+}
+
+/// A group of up to [`F64_LANES`] consecutive Gaussians in the backward pass: which have a
+/// splat, and their pixel sums (`stride` values each, see [`backward`]).
+struct Group<'a> {
+    first: usize,
+    live: [bool; F64_LANES],
+    sums: &'a [f64],
+    stride: usize,
+}
+
+dispatched! {
+    /// The affine chain rule of a group of Gaussians in `view`, in f64 lanes (the same
+    /// operations as one at a time, see [`gm::Real`]): their image-space gradients from their
+    /// pixel sums through [`gm::splat_backward_masked`] into `rows` and the screen offsets'
+    /// gradients `out_screen`.
+    fn chain_affine(view: ViewInputs<'_>, group: &Group, rows: &mut GradRow, out_screen: &mut [f32]) {
+        let (g, first, n, m) = (view.g, group.first, rows.len(), view.g.channels);
+        // Lanes past the group's end repeat its last Gaussian; their results are not used.
+        let at = |j: usize| first + j.min(n - 1);
+        let sum = |j: usize| &group.sums[j.min(n - 1) * group.stride..][..group.stride];
+        let geom = GaussianGeom::lanes(|j| g.geom(at(j)));
+        let off = F64x4::gather(|j| view.offset(at(j)));
+        // The image-space gradient from the pixel sums; the splats' μ kept, which scales
+        // ∂L/∂ρ_c = μ · S_c.
+        let mut mu = F64x4::default();
+        let image_grad = |sp: &gm::Splat<F64x4>| {
+            let [ca, cb, cc] = sp.conic_mat;
+            mu = sp.mu;
+            let mu = sp.mu;
+            let moment = |q: usize| F64x4::from_fn(|j| sum(j)[m + q]);
+            let (wx, wy) = (moment(0), moment(1));
+            let half = F64x4::splat(-0.5);
+            SplatGrad {
+                mean: [mu * (ca * wx + cb * wy), mu * (cb * wx + cc * wy)],
+                conic: [
+                    half * mu * moment(2),
+                    half * mu * moment(3),
+                    half * mu * moment(4),
+                ],
+                mu: F64x4::from_fn(|j| {
+                    let d = &g.densities[m * at(j)..m * (at(j) + 1)];
+                    (0..m).map(|c| d[c] as f64 * sum(j)[c]).sum()
+                }),
+            }
+        };
+        let (geo, sg, ok) = gm::splat_backward_masked(
+            &geom,
+            view.cam,
+            off,
+            view.opts.cutoff,
+            view.near(),
+            image_grad,
+        );
+        for j in (0..n).filter(|&j| group.live[j] && ok.0[j]) {
+            let g_screen = [sg.mean[0].0[j], sg.mean[1].0[j]];
+            if !g_screen.iter().all(|x| x.is_finite())
+                || !rows.add(j, &geo.lane(j), mu.0[j], &sum(j)[..m])
+            {
+                continue;
+            }
+            out_screen[2 * j] = g_screen[0] as f32;
+            out_screen[2 * j + 1] = g_screen[1] as f32;
+        }
+    }
 }

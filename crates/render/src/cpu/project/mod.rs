@@ -1,7 +1,7 @@
 //! Projection of Gaussians onto the detector of each view: forward and backward.
 //!
-//! Per view, every Gaussian is prepared once in f64 ([`gm::splat`] or [`gm::exact_splat`]) into
-//! a pixel box; the prepared geometry is shared by all M density channels. A pixel receives a
+//! Per view, every Gaussian is prepared once in f64 ([`gm::splat_masked`], four Gaussians at a
+//! time in lanes, or [`gm::exact_splat`]) into a pixel box; the prepared geometry is shared by all M density channels. A pixel receives a
 //! Gaussian iff it lies within the Mahalanobis cut-off (affine: of the 2D footprint; exact: of
 //! the ray's closest approach) — a relative criterion, unlike upstream's absolute `ρμG < 1e-5`
 //! skip, so densities of 1e-8 still render.
@@ -12,10 +12,10 @@
 //! AVX2+FMA when the CPU has it) that start at the box's own first column, so a footprint no
 //! wider than a block is evaluated once per row. The forward pass bins Gaussians into bands of
 //! [`BAND`] detector rows and owns one band per task (each pixel sums its Gaussians in index
-//! order); the backward pass owns one Gaussian per task: it sums its image-space moments over its
-//! own pixels from the padded upstream gradient and chains them through
-//! [`gm::splat_backward_with`] (one f64 splat per Gaussian); the exact backward accumulates
-//! per-pixel `∂/∂(centre, Σ⁻¹)`.
+//! order); the backward pass owns a group of four Gaussians per task: it sums each one's
+//! image-space moments over its own pixels from the padded upstream gradient and chains the four
+//! at once through [`gm::splat_backward_masked`] (one f64 splat per Gaussian, in lanes); the
+//! exact backward accumulates per-pixel `∂/∂(centre, Σ⁻¹)` one Gaussian at a time.
 
 mod backward;
 mod forward;
@@ -35,11 +35,11 @@ use super::lanes::Avx2;
 use super::lanes::{LANES, Lanes, Portable, RowBatches, UpstreamGrad, dispatched, drain, has_avx2};
 use super::padded::PaddedRows;
 use super::tiles::{Bins, TileBox, tile_span};
-use super::{GaussianSlices, grad_rows};
+use super::{GaussianSlices, GradRow, grad_rows};
 use crate::camera::Camera;
 use crate::gaussian_math::{
-    self as gm, ExactSplat, GaussianGeom, SplatGrad, camera_ray, exact_splat, exact_splat_backward,
-    line_integral_backward, ray_terms, sym_pack, sym_unpack,
+    self as gm, ExactSplat, F64_LANES, F64x4, GaussianGeom, Real, SplatGrad, camera_ray,
+    exact_splat, exact_splat_backward, line_integral_backward, ray_terms, sym_pack, sym_unpack,
 };
 use crate::options::{ProjectOptions, ProjectionMode};
 

@@ -118,21 +118,53 @@ pub(super) fn screen_offset(screen: &[f32], k: usize, view: usize, i: usize) -> 
     [screen[o] as f64, screen[o + 1] as f64]
 }
 
-/// The affine pixel splat (f32) of Gaussian `i` in `view`, or `None` if it is culled
-/// (non-finite density, degenerate, behind the near plane, off the detector).
-pub(super) fn affine_splat(
-    g: &GaussianSlices,
-    screen: &[f32],
-    view: usize,
-    i: usize,
-    cam: &Camera,
-    det: &Detector,
-    opts: &ProjectOptions,
-) -> Option<PixelSplat> {
-    g.densities_of(i)?;
-    let off = screen_offset(screen, g.len(), view, i);
-    let near = opts.near_fraction * cam.sdd;
-    let s = gm::splat(&g.geom(i), cam, off, opts.cutoff, near)?;
+/// What the per-Gaussian preparation of one view reads: the Gaussians, the per-view screen
+/// offsets, the view's index and camera, and the projection's options.
+#[derive(Clone, Copy)]
+pub(super) struct ViewInputs<'a> {
+    pub(super) g: &'a GaussianSlices<'a>,
+    pub(super) screen: &'a [f32],
+    pub(super) view: usize,
+    pub(super) cam: &'a Camera,
+    pub(super) opts: &'a ProjectOptions,
+}
+
+impl ViewInputs<'_> {
+    /// Gaussian `i`'s screen offset in this view.
+    pub(super) fn offset(&self, i: usize) -> [f64; 2] {
+        screen_offset(self.screen, self.g.len(), self.view, i)
+    }
+
+    /// The near plane's distance from the source.
+    pub(super) fn near(&self) -> f64 {
+        self.opts.near_fraction * self.cam.sdd
+    }
+}
+
+dispatched! {
+    /// The affine pixel splats (f32) of Gaussians `first..first + out.len()` (at most
+    /// [`F64_LANES`]) in the view, prepared together in f64 lanes; `None` for one that is
+    /// culled (non-finite density, degenerate, behind the near plane, off the detector).
+    pub(super) fn affine_splats(view: ViewInputs<'_>, first: usize, out: &mut [Option<PixelSplat>]) {
+        // Lanes past the end repeat the group's last Gaussian; their results are not used.
+        let last = first + out.len() - 1;
+        let at = |j: usize| (first + j).min(last);
+        let geom = GaussianGeom::lanes(|j| view.g.geom(at(j)));
+        let offsets = F64x4::gather(|j| view.offset(at(j)));
+        let (splats, ok) =
+            gm::splat_masked(&geom, view.cam, offsets, view.opts.cutoff, view.near());
+        let det = Detector::new(view.cam);
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = (ok.0[j] && view.g.densities_of(first + j).is_some())
+                .then(|| pixel_splat(&splats.lane(j), &det))
+                .flatten();
+        }
+    }
+}
+
+/// The f32 pixel splat of `s` with its pixel box, or `None` if it misses the detector or does
+/// not fit f32.
+fn pixel_splat(s: &gm::Splat, det: &Detector) -> Option<PixelSplat> {
     let bb = [
         s.mean[0] - s.half_extent[0],
         s.mean[0] + s.half_extent[0],
@@ -172,14 +204,24 @@ pub fn project_prepare(
         return out;
     }
     for (v, cam) in cams.iter().enumerate() {
-        let det = Detector::new(cam);
+        let inputs = ViewInputs {
+            g,
+            screen,
+            view: v,
+            cam,
+            opts,
+        };
         out[v * k * PREPARED_WIDTH..(v + 1) * k * PREPARED_WIDTH]
-            .par_chunks_mut(PREPARED_WIDTH)
+            .par_chunks_mut(F64_LANES * PREPARED_WIDTH)
             .enumerate()
-            .with_min_len(64)
-            .for_each(|(i, rec)| {
-                let s = affine_splat(g, screen, v, i, cam, &det, opts);
-                rec.copy_from_slice(&PixelSplat::pack(s.as_ref()));
+            .with_min_len(16)
+            .for_each(|(c, recs)| {
+                let mut splats = [None; F64_LANES];
+                let splats = &mut splats[..recs.len() / PREPARED_WIDTH];
+                affine_splats(inputs, c * F64_LANES, splats);
+                for (rec, s) in recs.chunks_exact_mut(PREPARED_WIDTH).zip(splats.iter()) {
+                    rec.copy_from_slice(&PixelSplat::pack(s.as_ref()));
+                }
             });
     }
     out
@@ -204,11 +246,24 @@ pub(super) fn prepare(
                 .with_min_len(256)
                 .map(|rec| PixelSplat::unpack(rec, &det))
                 .collect(),
-            None => (0..k)
-                .into_par_iter()
-                .with_min_len(64)
-                .map(|i| affine_splat(g, screen, view, i, cam, &det, opts))
-                .collect(),
+            None => {
+                let mut splats = vec![None; k];
+                splats
+                    .par_chunks_mut(F64_LANES)
+                    .enumerate()
+                    .with_min_len(16)
+                    .for_each(|(c, out)| {
+                        let inputs = ViewInputs {
+                            g,
+                            screen,
+                            view,
+                            cam,
+                            opts,
+                        };
+                        affine_splats(inputs, c * F64_LANES, out);
+                    });
+                splats
+            }
         }),
         ProjectionMode::Exact => Prepared::Exact(
             (0..k)
