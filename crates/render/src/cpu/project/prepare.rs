@@ -247,21 +247,19 @@ pub(super) fn prepare(
                 .map(|rec| PixelSplat::unpack(rec, &det))
                 .collect(),
             None => {
+                let inputs = ViewInputs {
+                    g,
+                    screen,
+                    view,
+                    cam,
+                    opts,
+                };
                 let mut splats = vec![None; k];
                 splats
                     .par_chunks_mut(F64_LANES)
                     .enumerate()
                     .with_min_len(16)
-                    .for_each(|(c, out)| {
-                        let inputs = ViewInputs {
-                            g,
-                            screen,
-                            view,
-                            cam,
-                            opts,
-                        };
-                        affine_splats(inputs, c * F64_LANES, out);
-                    });
+                    .for_each(|(c, out)| affine_splats(inputs, c * F64_LANES, out));
                 splats
             }
         }),
