@@ -1,8 +1,9 @@
 //! `--baseline <previous prism>`: every point is measured by this binary and then by the
 //! previous one, alternately in the same sweep (so both see the same machine load), and the
 //! ratios this / previous of each time series and of the peak memory are reported. A ratio above
-//! `1 +` [`REGRESSION`] is a regression; the sweep then ends with an error, so a script (or a
-//! reviewer) sees it.
+//! `1 +` [`REGRESSION`] must repeat to count: the point is measured again by both binaries, and
+//! each series keeps the smaller of its two ratios ([`confirmed`]). A regression that remains
+//! ends the sweep with an error, so a script (or a reviewer) sees it.
 
 use super::point::Measured;
 use super::series_times;
@@ -41,6 +42,30 @@ pub fn ratio(new: &Measured, old: &Measured) -> Ratio {
         method: new.method.name(),
         time,
         peak,
+    }
+}
+
+/// A point's ratios after a second pair of measurements: per series (and the peak) the smaller
+/// of the two, so a ratio over the margin stays one only if both pairs read it. A slower binary
+/// reads slower every time; a noisy window (this machine's 10-iteration windows reach 25 %)
+/// seldom twice in a row.
+pub fn confirmed(first: Ratio, second: &Ratio) -> Ratio {
+    let time = first
+        .time
+        .into_iter()
+        .map(|(s, v)| {
+            let again = second.time.get(&s).copied().unwrap_or(v);
+            (s, v.min(again))
+        })
+        .collect();
+    let peak = match (first.peak, second.peak) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    };
+    Ratio {
+        time,
+        peak,
+        ..first
     }
 }
 
@@ -125,5 +150,30 @@ mod tests {
         let bad = regressions(&r);
         assert_eq!(bad.len(), 1, "{bad:?}");
         assert!(bad[0].starts_with("time 4dsg stage 2 at K 1000") && bad[0].ends_with("1.50×"));
+    }
+
+    #[test]
+    fn a_regression_counts_only_if_the_second_pair_reads_it_too() {
+        let old = measured(Method::FourDsg, &[0.1, 0.2], 100);
+        let first = || ratio(&measured(Method::FourDsg, &[0.1, 0.3], 140), &old);
+        // Noise: the second pair reads stage 2 at 0.95× and the peak as before.
+        let noise = ratio(&measured(Method::FourDsg, &[0.11, 0.19], 100), &old);
+        let c = confirmed(first(), &noise);
+        assert!(
+            regressions(std::slice::from_ref(&c)).is_empty(),
+            "{:?}",
+            c.time
+        );
+        assert!((c.time["4dsg stage 1"] - 1.0).abs() < 1e-12);
+        assert!((c.time["4dsg stage 2"] - 0.95).abs() < 1e-12);
+        // A slower binary: the second pair reads stage 2 at 1.4× and the peak at 1.3×.
+        let slow = ratio(&measured(Method::FourDsg, &[0.1, 0.28], 130), &old);
+        let c = confirmed(first(), &slow);
+        let bad = regressions(std::slice::from_ref(&c));
+        assert_eq!(bad.len(), 2, "{bad:?}");
+        assert!(
+            bad[0].ends_with("1.40×") && bad[1].ends_with("1.30×"),
+            "{bad:?}"
+        );
     }
 }
