@@ -63,6 +63,8 @@ struct SplatState<T> {
     r_hat: [T; 3],
     kappa: T,
     splat: Splat<T>,
+    /// The camera in every lane.
+    cam: CameraLanes<T>,
 }
 
 /// A camera's numbers in every lane.
@@ -87,13 +89,6 @@ impl<T: Real> CameraLanes<T> {
             cy: T::splat(cam.cy),
         }
     }
-
-    /// [`Camera::to_camera`], the same operations.
-    #[inline(always)]
-    fn to_camera(&self, p: [T; 3]) -> [T; 3] {
-        let (r, t) = (&self.rotation, &self.translation);
-        std::array::from_fn(|i| r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2] + t[i])
-    }
 }
 
 #[inline(always)]
@@ -108,7 +103,9 @@ fn splat_state<T: Real>(
     let cl = CameraLanes::<T>::new(cam);
     let (zero, one) = (T::splat(0.0), T::splat(1.0));
     let axes = mat_mul(&cl.rotation, &f.rot);
-    let t = cl.to_camera(g.mean);
+    // [`Camera::to_camera`]: `W p + translation`, the same operations.
+    let wp = mat_vec(&cl.rotation, g.mean);
+    let t: [T; 3] = std::array::from_fn(|i| wp[i] + cl.translation[i]);
     let (fx, fy) = (cl.fx, cl.fy);
     let (jac, r_hat, proj) = match cam.projection {
         Projection::Cone => {
@@ -168,6 +165,7 @@ fn splat_state<T: Real>(
             mu,
             half_extent,
         },
+        cam: cl,
     };
     (state, ok)
 }
@@ -253,7 +251,7 @@ pub fn splat_backward_masked<T: Real>(
 ) -> (GeomGrad<T>, SplatGrad<T>, T::Mask) {
     let (st, ok) = splat_state(g, cam, screen_offset, cutoff, near);
     let grad = grad(&st.splat);
-    let cl = CameraLanes::<T>::new(cam);
+    let cl = &st.cam;
     let w = &cl.rotation;
     let jac = &st.jac;
     let two = T::splat(2.0);

@@ -61,7 +61,6 @@ pub const F64_LANES: usize = 4;
 /// Four `f64` lanes. Compiled inside a function with AVX enabled, each operation is one
 /// 256-bit instruction; elsewhere two SSE2 ones.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-#[repr(C, align(32))]
 pub struct F64x4(pub [f64; F64_LANES]);
 
 /// Per-lane truth values of [`F64x4`].
