@@ -169,5 +169,41 @@ pub(crate) fn grad_rows<'a>(
         })
 }
 
+/// Values per task of [`zeros`].
+const ZERO_CHUNK: usize = 1 << 15;
+
+/// `n` zeros, written by the worker pool in parallel: the allocator zeroes a buffer with one
+/// `memset` on the calling thread, a serial pass over megabytes (every gradient buffer of a
+/// backward pass) while the other workers wait.
+pub(crate) fn zeros(n: usize) -> Vec<f32> {
+    if n < 4 * ZERO_CHUNK {
+        return vec![0.0; n];
+    }
+    let mut v = Vec::with_capacity(n);
+    v.spare_capacity_mut()[..n]
+        .par_chunks_mut(ZERO_CHUNK)
+        .for_each(|c| c.fill(std::mem::MaybeUninit::new(0.0)));
+    // SAFETY: the chunks cover slots 0..n (capacity ≥ n) and each was written.
+    unsafe { v.set_len(n) };
+    v
+}
+
+/// The gradient rows of Gaussian `i` alone (a group of one).
+pub(crate) fn grad_row<'a>(
+    means: &'a mut [f32],
+    scales: &'a mut [f32],
+    rotations: &'a mut [f32],
+    densities: &'a mut [f32],
+    m: usize,
+    i: usize,
+) -> GradRow<'a> {
+    GradRow {
+        mean: &mut means[3 * i..3 * i + 3],
+        scale: &mut scales[3 * i..3 * i + 3],
+        rotation: &mut rotations[4 * i..4 * i + 4],
+        densities: &mut densities[m * i..m * i + m],
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod tests;

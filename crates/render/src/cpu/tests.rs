@@ -645,6 +645,85 @@ fn voxelize_gradients_match_central_differences() {
     }
 }
 
+/// A small patch among many Gaussians (a TV patch): the passes walk only the Gaussians near it,
+/// so the patch's volume and every near Gaussian's gradient row are bit for bit those of the
+/// near Gaussians alone, and every other row is exactly zero.
+#[test]
+fn a_patch_sees_only_the_gaussians_near_it() {
+    let m = 2;
+    let k = 300;
+    let p = Params::random(k, m, 12.0, (0.3, 1.5), 51);
+    let grid = VoxelGrid {
+        dims: [9, 8, 7],
+        voxel: [0.8, 0.9, 1.0],
+        offset: [4.0, -3.0, 2.5],
+    };
+    let opts = VoxelizeOptions::default();
+    let subset = |keep: &[usize]| {
+        let pick = |v: &[f32], w: usize| -> Vec<f32> {
+            keep.iter()
+                .flat_map(|&i| &v[w * i..w * (i + 1)])
+                .copied()
+                .collect()
+        };
+        Params {
+            means: pick(&p.means, 3),
+            scales: pick(&p.scales, 3),
+            rotations: pick(&p.rotations, 4),
+            densities: pick(&p.densities, m),
+            channels: m,
+        }
+    };
+    // Near: the f64 reference gives the Gaussian alone a value somewhere on the grid.
+    let near: Vec<usize> = (0..k)
+        .filter(|&i| {
+            let one = subset(&[i]);
+            reference_voxelize_f64(&one.flat(), 1, m, &grid, opts.cutoff)
+                .iter()
+                .any(|&v| v != 0.0)
+        })
+        .collect();
+    assert!(
+        (5..k / 4).contains(&near.len()),
+        "{} near Gaussians: not a patch among many",
+        near.len()
+    );
+    let alone = subset(&near);
+    let mut rng = ChaCha8Rng::seed_from_u64(6);
+    let r: Vec<f32> = (0..m * grid.len())
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(
+        bits(&voxelize_forward(&p.slices(), &grid, &opts)),
+        bits(&voxelize_forward(&alone.slices(), &grid, &opts))
+    );
+    let all = voxelize_backward(&p.slices(), &grid, &opts, &r);
+    let few = voxelize_backward(&alone.slices(), &grid, &opts, &r);
+    let rows = [
+        (&all.means, &few.means, 3),
+        (&all.scales, &few.scales, 3),
+        (&all.rotations, &few.rotations, 4),
+        (&all.densities, &few.densities, m),
+    ];
+    for (a, f, w) in rows {
+        let mut j = 0;
+        for i in 0..k {
+            let row = &a[w * i..w * (i + 1)];
+            if near.get(j) == Some(&i) {
+                assert_eq!(bits(row), bits(&f[w * j..w * (j + 1)]), "Gaussian {i}");
+                assert!(
+                    row.iter().any(|&v| v != 0.0),
+                    "near Gaussian {i} has no gradient"
+                );
+                j += 1;
+            } else {
+                assert!(row.iter().all(|&v| v == 0.0), "far Gaussian {i}: {row:?}");
+            }
+        }
+    }
+}
+
 #[test]
 fn voxelize_simd_dispatch_matches_baseline() {
     // As for the projection: the AVX2 path differs from the baseline only by FMA rounding.

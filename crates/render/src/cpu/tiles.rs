@@ -43,25 +43,30 @@ pub struct Bins {
 }
 
 impl Bins {
-    /// Bin Gaussians into a `tiles = [tx, ty, tz]` grid; tile index `(z·ty + y)·tx + x`.
+    /// Bin the `n` Gaussians whose boxes `box_of(i)` gives (`None`: in no tile) into a
+    /// `tiles = [tx, ty, tz]` grid; tile index `(z·ty + y)·tx + x`. The boxes are computed as
+    /// needed (once per pass, in parallel), not kept in an array of one per Gaussian.
     ///
     /// A counting sort in two parallel passes over chunks of Gaussians (count per tile, then
     /// write): chunk `c`'s entries of a tile follow those of chunks `< c`, so every tile lists
     /// its Gaussians in increasing order, as one serial pass would.
-    pub fn new(tiles: [usize; 3], boxes: &[Option<TileBox>]) -> Self {
+    pub fn from_fn(
+        tiles: [usize; 3],
+        n: usize,
+        box_of: impl Fn(usize) -> Option<TileBox> + Sync,
+    ) -> Self {
         let n_tiles = tiles[0] * tiles[1] * tiles[2];
-        let chunk = boxes
-            .len()
-            .div_ceil(4 * rayon::current_num_threads())
-            .max(MIN_CHUNK);
-        let chunks: Vec<&[Option<TileBox>]> = boxes.chunks(chunk).collect();
+        let chunk = n.div_ceil(4 * rayon::current_num_threads()).max(MIN_CHUNK);
+        let chunks: Vec<std::ops::Range<usize>> = (0..n.div_ceil(chunk))
+            .map(|c| c * chunk..((c + 1) * chunk).min(n))
+            .collect();
         // Per chunk: its count in every tile, then (rewritten in place) its first slot there.
         let mut cursors: Vec<Vec<usize>> = chunks
             .par_iter()
             .map(|c| {
                 let mut n = vec![0usize; n_tiles];
-                for b in c.iter().flatten() {
-                    each_tile(tiles, b, |t| n[t] += 1);
+                for b in c.clone().filter_map(&box_of) {
+                    each_tile(tiles, &b, |t| n[t] += 1);
                 }
                 n
             })
@@ -77,16 +82,15 @@ impl Bins {
         let mut tile_gaussians = vec![0u32; tile_start[n_tiles]];
         let out = SlotWriter(tile_gaussians.as_mut_ptr());
         cursors.par_iter_mut().enumerate().for_each(|(c, cur)| {
-            let first = c * chunk;
-            for (j, b) in chunks[c].iter().enumerate() {
-                if let Some(b) = b {
-                    each_tile(tiles, b, |t| {
+            for i in chunks[c].clone() {
+                if let Some(b) = box_of(i) {
+                    each_tile(tiles, &b, |t| {
                         let slot = cur[t];
                         cur[t] += 1;
                         // SAFETY: `slot < total`, and the cursors hand out every slot exactly
                         // once over all chunks (disjoint ranges per (tile, chunk)), so no two
                         // writes alias.
-                        unsafe { out.write(slot, (first + j) as u32) };
+                        unsafe { out.write(slot, i as u32) };
                     });
                 }
             }
@@ -156,7 +160,7 @@ mod tests {
                 hi: [3, 2, 1],
             }),
         ];
-        let bins = Bins::new([3, 2, 1], &boxes);
+        let bins = Bins::from_fn([3, 2, 1], boxes.len(), |i| boxes[i]);
         assert_eq!(bins.tile_gaussians.len(), 2 + 4);
         // Tile 1 (x=1, y=0) holds Gaussians 0 and 2.
         assert_eq!(bins.of(1), &[0, 2]);
@@ -194,7 +198,7 @@ mod tests {
                 each_tile(tiles, b, |t| lists[t].push(g as u32));
             }
         }
-        let bins = Bins::new(tiles, &boxes);
+        let bins = Bins::from_fn(tiles, boxes.len(), |i| boxes[i]);
         assert_eq!(bins.tiles(), n_tiles);
         for (t, list) in lists.iter().enumerate() {
             assert_eq!(bins.of(t), &list[..]);

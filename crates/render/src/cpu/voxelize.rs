@@ -23,8 +23,8 @@ use super::lanes::Avx2;
 use super::lanes::{LANES, Lanes, Portable, RowBatches, UpstreamGrad, dispatched, drain, has_avx2};
 use super::padded::PaddedRows;
 use super::tiles::{Bins, TileBox, tile_span};
-use super::{GaussianSlices, grad_rows};
-use crate::gaussian_math::{self as gm, voxel_backward};
+use super::{GaussianSlices, grad_row, zeros};
+use crate::gaussian_math::{self as gm, GeomGrad, voxel_backward};
 use crate::options::{VoxelGrid, VoxelizeOptions};
 
 /// z-slices per forward task.
@@ -61,25 +61,59 @@ impl VoxSplat {
     }
 }
 
-fn prepare(g: &GaussianSlices, grid: &VoxelGrid, cutoff: f64) -> Vec<Option<VoxSplat>> {
-    // Voxel-centre range per axis: a Gaussian whose cut-off reach (≤ cutoff · largest scale)
-    // misses it is rejected before any f64 shape work — most of them for a small TV patch.
-    let first = [0, 1, 2].map(|a| grid.centre(a, 0));
-    let last = [0, 1, 2].map(|a| grid.centre(a, grid.dims[a] - 1));
-    (0..g.len())
-        .into_par_iter()
-        .map(|i| {
-            let reach = cutoff
-                * g.scales[3 * i..3 * i + 3]
-                    .iter()
-                    .fold(0.0f64, |m, &v| m.max(v.abs() as f64));
-            let far = (0..3).any(|a| {
-                let c = g.means[3 * i + a] as f64;
-                c + reach < first[a] || c - reach > last[a]
+/// Voxel-centre range of a grid per axis and the cut-off, for [`near_flags`].
+#[derive(Clone, Copy)]
+struct Reach {
+    first: [f64; 3],
+    last: [f64; 3],
+    cutoff: f64,
+}
+
+/// Gaussians per task of [`prepare`]'s reach test.
+const REACH_CHUNK: usize = 512;
+
+dispatched! {
+    /// `near[j]`: whether Gaussian `start + j`'s cut-off reach (≤ cutoff · largest scale) meets
+    /// the grid's voxel-centre range on every axis. Branch-free (`|`, not `||`): which axis a
+    /// far Gaussian misses on is random.
+    fn near_flags(g: &GaussianSlices<'_>, r: Reach, start: usize, near: &mut [bool]) {
+        let n = near.len();
+        let means = g.means[3 * start..3 * (start + n)].chunks_exact(3);
+        let scales = g.scales[3 * start..3 * (start + n)].chunks_exact(3);
+        for ((o, c), s) in near.iter_mut().zip(means).zip(scales) {
+            let reach = r.cutoff * s.iter().fold(0.0f64, |m, &v| m.max(v.abs() as f64));
+            let far = (0..3).fold(false, |far, a| {
+                let x = c[a] as f64;
+                far | (x + reach < r.first[a]) | (x - reach > r.last[a])
             });
-            if far || g.densities_of(i).is_none() {
-                return None;
-            }
+            *o = !far;
+        }
+    }
+}
+
+/// The Gaussians whose cut-off box meets the grid, in index order, each with its index and
+/// voxel splat: a small TV patch meets a few per cent of them, so the passes walk this list
+/// rather than one slot per Gaussian.
+fn prepare(g: &GaussianSlices, grid: &VoxelGrid, cutoff: f64) -> Vec<(usize, VoxSplat)> {
+    // A Gaussian whose cut-off reach misses the voxel centres is rejected before any f64
+    // shape work — most of them for a small TV patch.
+    let reach = Reach {
+        first: [0, 1, 2].map(|a| grid.centre(a, 0)),
+        last: [0, 1, 2].map(|a| grid.centre(a, grid.dims[a] - 1)),
+        cutoff,
+    };
+    let k = g.len();
+    (0..k.div_ceil(REACH_CHUNK))
+        .into_par_iter()
+        .flat_map_iter(|c| {
+            let start = c * REACH_CHUNK;
+            let n = REACH_CHUNK.min(k - start);
+            let mut near = [false; REACH_CHUNK];
+            near_flags(g, reach, start, &mut near[..n]);
+            (0..n).filter(move |&j| near[j]).map(move |j| start + j)
+        })
+        .filter_map(|i| {
+            g.densities_of(i)?;
             let s = gm::voxel_splat(&g.geom(i), cutoff)?;
             let mut lo = [0; 3];
             let mut hi = [0; 3];
@@ -98,7 +132,7 @@ fn prepare(g: &GaussianSlices, grid: &VoxelGrid, cutoff: f64) -> Vec<Option<VoxS
                 lo,
                 hi,
             };
-            vs.q.iter().all(|v| v.is_finite()).then_some(vs)
+            vs.q.iter().all(|v| v.is_finite()).then_some((i, vs))
         })
         .collect()
 }
@@ -352,16 +386,13 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
     let [_, ny, nz] = grid.dims;
     let slabs = nz.div_ceil(SLAB);
     let slab = |t: usize| (t * SLAB, ((t + 1) * SLAB).min(nz));
-    let boxes: Vec<Option<TileBox>> = splats
-        .iter()
-        .map(|s| {
-            s.map(|s| TileBox {
-                lo: [0, 0, s.lo[2] / SLAB],
-                hi: [1, 1, (s.hi[2] - 1) / SLAB + 1],
-            })
+    let bins = Bins::from_fn([1, 1, slabs], splats.len(), |at| {
+        let s = &splats[at].1;
+        Some(TileBox {
+            lo: [0, 0, s.lo[2] / SLAB],
+            hi: [1, 1, (s.hi[2] - 1) / SLAB + 1],
         })
-        .collect();
-    let bins = Bins::new([1, 1, slabs], &boxes);
+    });
     let buffers: Vec<Vec<f32>> = (0..slabs)
         .into_par_iter()
         .map(|t| {
@@ -372,9 +403,10 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
                 cut2,
             };
             let mut buf = pass.pad.rows.zeros(m);
-            for &gi in bins.of(t) {
-                let gi = gi as usize;
-                let Some(s) = &splats[gi] else { continue };
+            // The list is in index order, so each voxel still sums its Gaussians in that order.
+            for &at in bins.of(t) {
+                let (gi, s) = &splats[at as usize];
+                let gi = *gi;
                 let dens = &g.densities[m * gi..m * gi + m];
                 let zs = s.lo[2].max(z0)..s.hi[2].min(z1);
                 voxel_forward(s, pass, zs, dens, &mut buf);
@@ -402,10 +434,10 @@ pub fn voxelize_backward(
     let m = g.channels;
     let vol = grid.len();
     let mut total = VoxelizeGrads {
-        means: vec![0.0; 3 * k],
-        scales: vec![0.0; 3 * k],
-        rotations: vec![0.0; 4 * k],
-        densities: vec![0.0; m * k],
+        means: zeros(3 * k),
+        scales: zeros(3 * k),
+        rotations: zeros(4 * k),
+        densities: zeros(m * k),
     };
     if k == 0 || vol == 0 || m == 0 {
         return total;
@@ -428,32 +460,36 @@ pub fn voxelize_backward(
         values: &padded,
         finite: grad.par_iter().all(|v| v.is_finite()),
     };
-    // Per Gaussian: [S_0..S_{M-1}, Σ wG d (3), Σ wG d dᵀ packed (6)], w = Σ_c ρ_c g_c; chained
-    // to its parameters and written straight into the outputs.
-    let VoxelizeGrads {
-        means,
-        scales,
-        rotations,
-        densities,
-    } = &mut total;
-    grad_rows(means, scales, rotations, densities, m, 1)
-        .enumerate()
-        .with_min_len(16)
+    // Per Gaussian near the grid: [S_0..S_{M-1}, Σ wG d (3), Σ wG d dᵀ packed (6)],
+    // w = Σ_c ρ_c g_c, and its chain to the parameters; then added to its rows.
+    let stride = m + 9;
+    let mut sums = vec![0.0f64; splats.len() * stride];
+    let mut geos = vec![GeomGrad::default(); splats.len()];
+    sums.par_chunks_mut(stride)
+        .zip(geos.par_iter_mut())
+        .zip(splats.par_iter())
+        .with_min_len(4)
         .for_each_init(
-            || (vec![0.0f64; m + 9], vec![[0.0f32; LANES]; m]),
-            |(sum, lanes), (i, mut row)| {
-                let Some(s) = &splats[i] else { return };
+            || vec![[0.0f32; LANES]; m],
+            |lanes, ((sum, geo), (i, s))| {
                 let dens = &g.densities[m * i..m * i + m];
-                sum.fill(0.0);
                 for x0 in s.blocks() {
                     voxel_backward_sums(s, pass, x0, upstream, dens, lanes, sum);
                 }
                 let sum_d = [sum[m], sum[m + 1], sum[m + 2]];
                 let p = &sum[m + 3..m + 9];
                 let sum_dd = [[p[0], p[1], p[2]], [p[1], p[3], p[4]], [p[2], p[4], p[5]]];
-                let geo = voxel_backward(&g.geom(i), sum_d, &sum_dd);
-                row.add(0, &geo, 1.0, &sum[..m]);
+                *geo = voxel_backward(&g.geom(*i), sum_d, &sum_dd);
             },
         );
+    let VoxelizeGrads {
+        means,
+        scales,
+        rotations,
+        densities,
+    } = &mut total;
+    for (((i, _), geo), sum) in splats.iter().zip(&geos).zip(sums.chunks_exact(stride)) {
+        grad_row(means, scales, rotations, densities, m, *i).add(0, geo, 1.0, &sum[..m]);
+    }
     total
 }

@@ -63,9 +63,23 @@ pub const F64_LANES: usize = 4;
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct F64x4(pub [f64; F64_LANES]);
 
-/// Per-lane truth values of [`F64x4`].
+/// Per-lane truth values of [`F64x4`], each lane all ones (true) or all zeros (false): the
+/// form a vector comparison gives, so comparisons and `&` stay in vector registers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Mask4(pub [bool; F64_LANES]);
+pub struct Mask4([u64; F64_LANES]);
+
+impl Mask4 {
+    /// Lane `j`.
+    #[inline(always)]
+    pub fn lane(self, j: usize) -> bool {
+        self.0[j] != 0
+    }
+
+    #[inline(always)]
+    fn from_fn(mut f: impl FnMut(usize) -> bool) -> Self {
+        Self(std::array::from_fn(|j| if f(j) { u64::MAX } else { 0 }))
+    }
+}
 
 impl BitAnd for Mask4 {
     type Output = Self;
@@ -138,11 +152,11 @@ impl Real for F64x4 {
 
     #[inline(always)]
     fn gt(self, o: Self) -> Mask4 {
-        Mask4(std::array::from_fn(|j| self.0[j] > o.0[j]))
+        Mask4::from_fn(|j| self.0[j] > o.0[j])
     }
 
     #[inline(always)]
     fn is_finite(self) -> Mask4 {
-        Mask4(self.0.map(f64::is_finite))
+        Mask4::from_fn(|j| self.0[j].is_finite())
     }
 }

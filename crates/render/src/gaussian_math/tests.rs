@@ -509,7 +509,7 @@ fn lanes_compute_each_gaussian_bit_for_bit_as_alone() {
             assert_eq!(ok, ok_back);
             for (j, g) in geoms.iter().enumerate() {
                 let alone = splat(g, &cam, offsets(j), 3.0, 1e-3);
-                assert_eq!(ok.0[j], alone.is_some(), "lane {j}, bad slot {slot}");
+                assert_eq!(ok.lane(j), alone.is_some(), "lane {j}, bad slot {slot}");
                 let Some(alone) = alone else { continue };
                 let lane = sp.lane(j);
                 let flat = |s: &Splat| {

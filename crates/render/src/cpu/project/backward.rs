@@ -14,11 +14,11 @@ pub(super) fn backward(
     let k = g.len();
     let m = g.channels;
     let mut total = ProjectGrads {
-        means: vec![0.0; 3 * k],
-        scales: vec![0.0; 3 * k],
-        rotations: vec![0.0; 4 * k],
-        densities: vec![0.0; m * k],
-        screen: vec![0.0; 2 * k * cams.len()],
+        means: zeros(3 * k),
+        scales: zeros(3 * k),
+        rotations: zeros(4 * k),
+        densities: zeros(m * k),
+        screen: zeros(2 * k * cams.len()),
     };
     let Some(first) = cams.first() else {
         return total;
@@ -82,11 +82,11 @@ pub(super) fn backward(
                         Prepared::Affine(splats) => {
                             let mut live = [false; F64_LANES];
                             for j in 0..n {
-                                let Some(s) = &splats[first + j] else {
+                                let Some(s) = splats.get(first + j) else {
                                     continue;
                                 };
                                 let sum = &mut sums[j * stride..(j + 1) * stride];
-                                splat_backward(s, cut2 as f32, upstream, dens(j), lanes, sum);
+                                splat_backward(&s, cut2 as f32, upstream, dens(j), lanes, sum);
                                 live[j] = true;
                             }
                             if !live.contains(&true) {
@@ -199,7 +199,7 @@ dispatched! {
             view.near(),
             image_grad,
         );
-        for j in (0..n).filter(|&j| group.live[j] && ok.0[j]) {
+        for j in (0..n).filter(|&j| group.live[j] && ok.lane(j)) {
             let g_screen = [sg.mean[0].0[j], sg.mean[1].0[j]];
             if !g_screen.iter().all(|x| x.is_finite())
                 || !rows.add(j, &geo.lane(j), mu.0[j], &sum(j)[..m])

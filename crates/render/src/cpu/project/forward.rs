@@ -25,15 +25,12 @@ pub(super) fn forward(
         let prep = prepare(g, screen, prepared, v, cam, opts);
         let n_bands = det.rows.div_ceil(BAND);
         let band = |b: usize| Band::new(&det, b * BAND, ((b + 1) * BAND).min(det.rows));
-        let boxes: Vec<Option<TileBox>> = (0..g.len())
-            .map(|i| {
-                prep.rows(i).map(|r| TileBox {
-                    lo: [0, r.start / BAND, 0],
-                    hi: [1, (r.end - 1) / BAND + 1, 1],
-                })
+        let bins = Bins::from_fn([1, n_bands, 1], g.len(), |i| {
+            prep.rows(i).map(|r| TileBox {
+                lo: [0, r.start / BAND, 0],
+                hi: [1, (r.end - 1) / BAND + 1, 1],
             })
-            .collect();
-        let bins = Bins::new([1, n_bands, 1], &boxes);
+        });
         let bands: Vec<Vec<f32>> = (0..n_bands)
             .into_par_iter()
             .map(|b| {
@@ -47,7 +44,7 @@ pub(super) fn forward(
                         // overlap, unlike misses taken inside the pixel loops.
                         let local: Vec<(usize, PixelSplat)> = list
                             .iter()
-                            .filter_map(|&gi| splats[gi as usize].map(|s| (gi as usize, s)))
+                            .filter_map(|&gi| splats.get(gi as usize).map(|s| (gi as usize, s)))
                             .collect();
                         for &(gi, ref s) in &local {
                             let dens = &g.densities[m * gi..m * gi + m];

@@ -35,7 +35,7 @@ use super::lanes::Avx2;
 use super::lanes::{LANES, Lanes, Portable, RowBatches, UpstreamGrad, dispatched, drain, has_avx2};
 use super::padded::PaddedRows;
 use super::tiles::{Bins, TileBox, tile_span};
-use super::{GaussianSlices, GradRow, grad_rows};
+use super::{GaussianSlices, GradRow, grad_rows, zeros};
 use crate::camera::Camera;
 use crate::gaussian_math::{
     self as gm, ExactSplat, F64_LANES, F64x4, GaussianGeom, Real, SplatGrad, camera_ray,
@@ -137,7 +137,7 @@ pub fn count_project_evaluations(
                         .map(|(a, b)| b - a)
                         .sum()
                 };
-                splats.iter().flatten().map(spans).sum::<usize>()
+                splats.iter().flatten().map(|s| spans(&s)).sum::<usize>()
             }
             Prepared::Exact(splats) => splats
                 .iter()

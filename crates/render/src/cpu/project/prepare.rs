@@ -56,14 +56,7 @@ impl PixelSplat {
     /// Inverse of [`PixelSplat::pack`], with the box clamped to `det` (so a record made for
     /// another detector cannot index outside this one); `None` if culled.
     pub(super) fn unpack(v: &[f32], det: &Detector) -> Option<PixelSplat> {
-        // `as` saturates (NaN → 0), so the clamped box is always a valid index range.
-        let x0 = v[6] as usize;
-        let x1 = (v[7] as usize).min(det.cols);
-        let y0 = v[8] as usize;
-        let y1 = (v[9] as usize).min(det.rows);
-        if x0 >= x1 || y0 >= y1 {
-            return None;
-        }
+        let [x0, x1, y0, y1] = Self::unpack_box(v, det)?;
         Some(PixelSplat {
             mx: v[0],
             my: v[1],
@@ -76,6 +69,23 @@ impl PixelSplat {
             y0: y0 as u32,
             y1: y1 as u32,
         })
+    }
+
+    /// The clamped pixel box `[x0, x1, y0, y1]` of a packed record, `None` if it is empty.
+    #[inline(always)]
+    fn unpack_box(v: &[f32], det: &Detector) -> Option<[usize; 4]> {
+        // `as` saturates (NaN → 0), so the clamped box is always a valid index range.
+        let x0 = v[6] as usize;
+        let x1 = (v[7] as usize).min(det.cols);
+        let y0 = v[8] as usize;
+        let y1 = (v[9] as usize).min(det.rows);
+        (x0 < x1 && y0 < y1).then_some([x0, x1, y0, y1])
+    }
+
+    /// The rows `[y0, y1)` of a packed record's box ([`Self::unpack`]'s, without the rest).
+    #[inline(always)]
+    pub(super) fn unpack_rows(v: &[f32], det: &Detector) -> Option<std::ops::Range<usize>> {
+        Self::unpack_box(v, det).map(|b| b[2]..b[3])
     }
 
     /// Its rows `[y0, y1)`.
@@ -107,10 +117,51 @@ impl Detector {
 }
 
 /// Per-view preparation of every Gaussian.
-pub(super) enum Prepared {
+pub(super) enum Prepared<'a> {
     /// Pixel splats (the chain rule recomputes the f64 splat it needs).
-    Affine(Vec<Option<PixelSplat>>),
+    Affine(AffineSplats<'a>),
     Exact(Vec<Option<(ExactSplat, [usize; 4])>>),
+}
+
+/// The affine pixel splats of one view: read from a prepared state as they are used (one
+/// record per Gaussian, no unpacked copy), or computed.
+pub(super) enum AffineSplats<'a> {
+    Packed { records: &'a [f32], det: Detector },
+    Computed(Vec<Option<PixelSplat>>),
+}
+
+impl AffineSplats<'_> {
+    /// Gaussian `i`'s splat, `None` if it is culled.
+    #[inline(always)]
+    pub(super) fn get(&self, i: usize) -> Option<PixelSplat> {
+        match self {
+            Self::Packed { records, det } => {
+                PixelSplat::unpack(&records[i * PREPARED_WIDTH..(i + 1) * PREPARED_WIDTH], det)
+            }
+            Self::Computed(s) => s[i],
+        }
+    }
+
+    /// Rows `[y0, y1)` of Gaussian `i`'s pixel box, `None` if it is culled (as [`Self::get`],
+    /// reading only the box of a packed record).
+    #[inline(always)]
+    pub(super) fn rows(&self, i: usize) -> Option<std::ops::Range<usize>> {
+        match self {
+            Self::Packed { records, det } => {
+                PixelSplat::unpack_rows(&records[i * PREPARED_WIDTH..(i + 1) * PREPARED_WIDTH], det)
+            }
+            Self::Computed(s) => s[i].as_ref().map(PixelSplat::rows),
+        }
+    }
+
+    /// Every Gaussian's splat, in index order.
+    pub(super) fn iter(&self) -> impl Iterator<Item = Option<PixelSplat>> + '_ {
+        let n = match self {
+            Self::Packed { records, .. } => records.len() / PREPARED_WIDTH,
+            Self::Computed(s) => s.len(),
+        };
+        (0..n).map(|i| self.get(i))
+    }
 }
 
 pub(super) fn screen_offset(screen: &[f32], k: usize, view: usize, i: usize) -> [f64; 2] {
@@ -155,7 +206,7 @@ dispatched! {
             gm::splat_masked(&geom, view.cam, offsets, view.opts.cutoff, view.near());
         let det = Detector::new(view.cam);
         for (j, o) in out.iter_mut().enumerate() {
-            *o = (ok.0[j] && view.g.densities_of(first + j).is_some())
+            *o = (ok.lane(j) && view.g.densities_of(first + j).is_some())
                 .then(|| pixel_splat(&splats.lane(j), &det))
                 .flatten();
         }
@@ -199,10 +250,13 @@ pub fn project_prepare(
     opts: &ProjectOptions,
 ) -> Vec<f32> {
     let k = g.len();
-    let mut out = vec![0.0f32; cams.len() * k * prepared_width(opts.mode)];
-    if opts.mode == ProjectionMode::Exact || k == 0 {
-        return out;
+    if opts.mode == ProjectionMode::Exact {
+        return Vec::new();
     }
+    let len = cams.len() * k * PREPARED_WIDTH;
+    // Every record is written below, so the buffer is not zeroed first.
+    let mut out = Vec::with_capacity(len);
+    let records = &mut out.spare_capacity_mut()[..len];
     for (v, cam) in cams.iter().enumerate() {
         let inputs = ViewInputs {
             g,
@@ -211,7 +265,7 @@ pub fn project_prepare(
             cam,
             opts,
         };
-        out[v * k * PREPARED_WIDTH..(v + 1) * k * PREPARED_WIDTH]
+        records[v * k * PREPARED_WIDTH..(v + 1) * k * PREPARED_WIDTH]
             .par_chunks_mut(F64_LANES * PREPARED_WIDTH)
             .enumerate()
             .with_min_len(16)
@@ -220,32 +274,36 @@ pub fn project_prepare(
                 let splats = &mut splats[..recs.len() / PREPARED_WIDTH];
                 affine_splats(inputs, c * F64_LANES, splats);
                 for (rec, s) in recs.chunks_exact_mut(PREPARED_WIDTH).zip(splats.iter()) {
-                    rec.copy_from_slice(&PixelSplat::pack(s.as_ref()));
+                    for (slot, v) in rec.iter_mut().zip(PixelSplat::pack(s.as_ref())) {
+                        slot.write(v);
+                    }
                 }
             });
     }
+    // SAFETY: the views' chunks cover slots 0..len (capacity ≥ len) and every record of every
+    // chunk was written.
+    unsafe { out.set_len(len) };
     out
 }
 
 /// The preparation of `view`: unpacked from `prepared` (affine, see [`project_prepare`]) or
 /// computed (exact, or affine without a prepared state).
-pub(super) fn prepare(
+pub(super) fn prepare<'a>(
     g: &GaussianSlices,
     screen: &[f32],
-    prepared: Option<&[f32]>,
+    prepared: Option<&'a [f32]>,
     view: usize,
     cam: &Camera,
     opts: &ProjectOptions,
-) -> Prepared {
+) -> Prepared<'a> {
     let k = g.len();
     let det = Detector::new(cam);
     match opts.mode {
         ProjectionMode::Affine => Prepared::Affine(match prepared {
-            Some(p) => p[view * k * PREPARED_WIDTH..(view + 1) * k * PREPARED_WIDTH]
-                .par_chunks(PREPARED_WIDTH)
-                .with_min_len(256)
-                .map(|rec| PixelSplat::unpack(rec, &det))
-                .collect(),
+            Some(p) => AffineSplats::Packed {
+                records: &p[view * k * PREPARED_WIDTH..(view + 1) * k * PREPARED_WIDTH],
+                det,
+            },
             None => {
                 let inputs = ViewInputs {
                     g,
@@ -260,7 +318,7 @@ pub(super) fn prepare(
                     .enumerate()
                     .with_min_len(16)
                     .for_each(|(c, out)| affine_splats(inputs, c * F64_LANES, out));
-                splats
+                AffineSplats::Computed(splats)
             }
         }),
         ProjectionMode::Exact => Prepared::Exact(
@@ -278,11 +336,11 @@ pub(super) fn prepare(
     }
 }
 
-impl Prepared {
+impl Prepared<'_> {
     /// Rows `[y0, y1)` of Gaussian `i`'s pixel box, `None` if it is culled.
     pub(super) fn rows(&self, i: usize) -> Option<std::ops::Range<usize>> {
         match self {
-            Prepared::Affine(s) => s[i].as_ref().map(PixelSplat::rows),
+            Prepared::Affine(s) => s.rows(i),
             Prepared::Exact(s) => s[i].as_ref().map(|(_, px)| px[2]..px[3]),
         }
     }
