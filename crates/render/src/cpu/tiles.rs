@@ -149,7 +149,7 @@ mod tests {
 
     #[test]
     fn binning_lists_each_tiles_gaussians() {
-        let boxes = vec![
+        let boxes = [
             Some(TileBox {
                 lo: [0, 0, 0],
                 hi: [2, 1, 1],
