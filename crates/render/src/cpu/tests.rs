@@ -52,6 +52,24 @@ impl Params {
         p
     }
 
+    /// The Gaussians `order` names, in that order.
+    pub(crate) fn select(&self, order: &[usize]) -> Self {
+        let pick = |v: &[f32], w: usize| -> Vec<f32> {
+            order
+                .iter()
+                .flat_map(|&i| &v[w * i..w * (i + 1)])
+                .copied()
+                .collect()
+        };
+        Params {
+            means: pick(&self.means, 3),
+            scales: pick(&self.scales, 3),
+            rotations: pick(&self.rotations, 4),
+            densities: pick(&self.densities, self.channels),
+            channels: self.channels,
+        }
+    }
+
     /// All parameters as one f64 vector (means, scales, rotations, densities).
     pub(crate) fn flat(&self) -> Vec<f64> {
         self.means
@@ -659,25 +677,10 @@ fn a_patch_sees_only_the_gaussians_near_it() {
         offset: [4.0, -3.0, 2.5],
     };
     let opts = VoxelizeOptions::default();
-    let subset = |keep: &[usize]| {
-        let pick = |v: &[f32], w: usize| -> Vec<f32> {
-            keep.iter()
-                .flat_map(|&i| &v[w * i..w * (i + 1)])
-                .copied()
-                .collect()
-        };
-        Params {
-            means: pick(&p.means, 3),
-            scales: pick(&p.scales, 3),
-            rotations: pick(&p.rotations, 4),
-            densities: pick(&p.densities, m),
-            channels: m,
-        }
-    };
     // Near: the f64 reference gives the Gaussian alone a value somewhere on the grid.
     let near: Vec<usize> = (0..k)
         .filter(|&i| {
-            let one = subset(&[i]);
+            let one = p.select(&[i]);
             reference_voxelize_f64(&one.flat(), 1, m, &grid, opts.cutoff)
                 .iter()
                 .any(|&v| v != 0.0)
@@ -688,7 +691,7 @@ fn a_patch_sees_only_the_gaussians_near_it() {
         "{} near Gaussians: not a patch among many",
         near.len()
     );
-    let alone = subset(&near);
+    let alone = p.select(&near);
     let mut rng = ChaCha8Rng::seed_from_u64(6);
     let r: Vec<f32> = (0..m * grid.len())
         .map(|_| rng.random_range(-1.0..1.0))

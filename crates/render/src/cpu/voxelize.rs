@@ -405,8 +405,7 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
             let mut buf = pass.pad.rows.zeros(m);
             // The list is in index order, so each voxel still sums its Gaussians in that order.
             for &at in bins.of(t) {
-                let (gi, s) = &splats[at as usize];
-                let gi = *gi;
+                let &(gi, ref s) = &splats[at as usize];
                 let dens = &g.densities[m * gi..m * gi + m];
                 let zs = s.lo[2].max(z0)..s.hi[2].min(z1);
                 voxel_forward(s, pass, zs, dens, &mut buf);

@@ -382,22 +382,9 @@ fn projection_matches_cpu_cone_and_parallel() {
 /// forward kernels skip steps (the outputs must not change).
 fn sorted_by_z(p: &Params) -> Params {
     let k = p.means.len() / 3;
-    let m = p.channels;
     let mut order: Vec<usize> = (0..k).collect();
     order.sort_by(|&a, &b| p.means[3 * a + 2].total_cmp(&p.means[3 * b + 2]));
-    let pick = |v: &[f32], n: usize| -> Vec<f32> {
-        order
-            .iter()
-            .flat_map(|&i| v[n * i..n * i + n].to_vec())
-            .collect()
-    };
-    Params {
-        means: pick(&p.means, 3),
-        scales: pick(&p.scales, 3),
-        rotations: pick(&p.rotations, 4),
-        densities: pick(&p.densities, m),
-        channels: m,
-    }
+    p.select(&order)
 }
 
 #[test]

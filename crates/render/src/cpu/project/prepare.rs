@@ -250,13 +250,10 @@ pub fn project_prepare(
     opts: &ProjectOptions,
 ) -> Vec<f32> {
     let k = g.len();
-    if opts.mode == ProjectionMode::Exact {
-        return Vec::new();
+    let mut out = zeros(cams.len() * k * prepared_width(opts.mode));
+    if out.is_empty() {
+        return out;
     }
-    let len = cams.len() * k * PREPARED_WIDTH;
-    // Every record is written below, so the buffer is not zeroed first.
-    let mut out = Vec::with_capacity(len);
-    let records = &mut out.spare_capacity_mut()[..len];
     for (v, cam) in cams.iter().enumerate() {
         let inputs = ViewInputs {
             g,
@@ -265,7 +262,7 @@ pub fn project_prepare(
             cam,
             opts,
         };
-        records[v * k * PREPARED_WIDTH..(v + 1) * k * PREPARED_WIDTH]
+        out[v * k * PREPARED_WIDTH..(v + 1) * k * PREPARED_WIDTH]
             .par_chunks_mut(F64_LANES * PREPARED_WIDTH)
             .enumerate()
             .with_min_len(16)
@@ -274,15 +271,10 @@ pub fn project_prepare(
                 let splats = &mut splats[..recs.len() / PREPARED_WIDTH];
                 affine_splats(inputs, c * F64_LANES, splats);
                 for (rec, s) in recs.chunks_exact_mut(PREPARED_WIDTH).zip(splats.iter()) {
-                    for (slot, v) in rec.iter_mut().zip(PixelSplat::pack(s.as_ref())) {
-                        slot.write(v);
-                    }
+                    rec.copy_from_slice(&PixelSplat::pack(s.as_ref()));
                 }
             });
     }
-    // SAFETY: the views' chunks cover slots 0..len (capacity ≥ len) and every record of every
-    // chunk was written.
-    unsafe { out.set_len(len) };
     out
 }
 
