@@ -105,7 +105,7 @@ fn splat_state<T: Real>(
     let axes = mat_mul(&cl.rotation, &f.rot);
     // [`Camera::to_camera`]: `W p + translation`, the same operations.
     let wp = mat_vec(&cl.rotation, g.mean);
-    let t: [T; 3] = std::array::from_fn(|i| wp[i] + cl.translation[i]);
+    let t: [T; 3] = arr3(|i| wp[i] + cl.translation[i]);
     let (fx, fy) = (cl.fx, cl.fy);
     let (jac, r_hat, proj) = match cam.projection {
         Projection::Cone => {
@@ -277,13 +277,12 @@ pub fn splat_backward_masked<T: Real>(
     let f = &st.f;
     let (a, b, c) = (&st.axes, &st.b, st.c);
     // Σ₂D = B D Bᵀ (D = diag(s²)): G_B = 2 G_Σ2D B D, G_D,j = Σ_ab G_ab B_aj B_bj.
-    let g_b: [[T; 3]; 2] = std::array::from_fn(|r| {
-        std::array::from_fn(|j| two * (g2[r][0] * b[0][j] + g2[r][1] * b[1][j]) * f.s2[j])
-    });
+    let g_b: [[T; 3]; 2] =
+        arr2(|r| arr3(|j| two * (g2[r][0] * b[0][j] + g2[r][1] * b[1][j]) * f.s2[j]));
     // μ = √(2π/κ), κ = Σ_j c_j² s_j⁻²: G_c = 2 g_κ c s⁻², G_{s⁻²} = g_κ c², s⁻² = 1/s².
     let g_kappa = grad.mu * (T::splat(-0.5) * st.splat.mu / st.kappa);
-    let g_c: [T; 3] = std::array::from_fn(|j| two * g_kappa * c[j] * f.inv_s2[j]);
-    let g_scale: [T; 3] = std::array::from_fn(|j| {
+    let g_c: [T; 3] = arr3(|j| two * g_kappa * c[j] * f.inv_s2[j]);
+    let g_scale: [T; 3] = arr3(|j| {
         let g_s2 = g2[0][0] * b[0][j] * b[0][j]
             + two * g2[0][1] * b[0][j] * b[1][j]
             + g2[1][1] * b[1][j] * b[1][j]
@@ -292,9 +291,8 @@ pub fn splat_backward_masked<T: Real>(
     });
     // B = J A and c = Aᵀ r̂: G_A = Jᵀ G_B + r̂ G_cᵀ; then A = W R: G_R = Wᵀ G_A.
     let r = st.r_hat;
-    let g_axes: [[T; 3]; 3] = std::array::from_fn(|i| {
-        std::array::from_fn(|j| jac[0][i] * g_b[0][j] + jac[1][i] * g_b[1][j] + r[i] * g_c[j])
-    });
+    let g_axes: [[T; 3]; 3] =
+        arr3(|i| arr3(|j| jac[0][i] * g_b[0][j] + jac[1][i] * g_b[1][j] + r[i] * g_c[j]));
     let g_quat = quat_backward(f.unit_quat, f.quat_norm, &mat_mul(&transpose(w), &g_axes));
 
     // Mean: through the projected centre, J(t) and r̂(t).

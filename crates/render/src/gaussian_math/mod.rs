@@ -59,11 +59,30 @@ pub fn mat_t_vec<T: Real>(m: &[[T; 3]; 3], v: [T; 3]) -> [T; 3] {
     ]
 }
 
+/// `[f(0), f(1)]`, and [`arr3`], [`arr4`]: `std::array::from_fn` spelt out. In a large kernel
+/// the inliner can leave `from_fn`'s machinery out of line, where it runs without the kernel's
+/// AVX and passes its arrays through memory; a literal array has nothing to leave out. The
+/// elements are computed in the same order.
+#[inline(always)]
+pub(crate) fn arr2<T>(mut f: impl FnMut(usize) -> T) -> [T; 2] {
+    [f(0), f(1)]
+}
+
+/// See [`arr2`].
+#[inline(always)]
+pub(crate) fn arr3<T>(mut f: impl FnMut(usize) -> T) -> [T; 3] {
+    [f(0), f(1), f(2)]
+}
+
+/// See [`arr2`].
+#[inline(always)]
+pub(crate) fn arr4<T>(mut f: impl FnMut(usize) -> T) -> [T; 4] {
+    [f(0), f(1), f(2), f(3)]
+}
+
 #[inline(always)]
 pub fn mat_mul<T: Real>(a: &[[T; 3]; 3], b: &[[T; 3]; 3]) -> [[T; 3]; 3] {
-    std::array::from_fn(|i| {
-        std::array::from_fn(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j])
-    })
+    arr3(|i| arr3(|j| a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j]))
 }
 
 #[inline(always)]
@@ -131,7 +150,7 @@ impl GaussianGeom<F64x4> {
     /// Four Gaussians in lanes: lane `j` is `geom(j)`.
     #[inline(always)]
     pub fn lanes(geom: impl Fn(usize) -> GaussianGeom) -> Self {
-        let g: [GaussianGeom; F64_LANES] = std::array::from_fn(geom);
+        let g: [GaussianGeom; F64_LANES] = arr4(geom);
         Self {
             mean: F64x4::gather(|j| g[j].mean),
             scale: F64x4::gather(|j| g[j].scale),
@@ -281,7 +300,7 @@ fn quat_backward<T: Real>(unit_quat: [T; 4], quat_norm: T, g_rot: &[[T; 3]; 3]) 
     let g_unit = rotation_grad_to_quat(unit_quat, g_rot);
     let u = unit_quat;
     let radial = g_unit[0] * u[0] + g_unit[1] * u[1] + g_unit[2] * u[2] + g_unit[3] * u[3];
-    std::array::from_fn(|k| (g_unit[k] - u[k] * radial) / quat_norm)
+    arr4(|k| (g_unit[k] - u[k] * radial) / quat_norm)
 }
 
 /// Chain `∂L/∂Σ` and `∂L/∂Σ⁻¹` (world frame, symmetric) back to scale and raw quaternion.

@@ -94,13 +94,13 @@ impl F64x4 {
     /// Lane `j` of every value is `f(j)`.
     #[inline(always)]
     pub fn from_fn(f: impl FnMut(usize) -> f64) -> Self {
-        Self(std::array::from_fn(f))
+        Self(super::arr4(f))
     }
 
     /// `N` values of four items in lanes: lane `j` of value `q` is `f(j)[q]`.
     #[inline(always)]
     pub fn gather<const N: usize>(f: impl FnMut(usize) -> [f64; N]) -> [Self; N] {
-        let items: [[f64; N]; F64_LANES] = std::array::from_fn(f);
+        let items: [[f64; N]; F64_LANES] = super::arr4(f);
         std::array::from_fn(|q| Self::from_fn(|j| items[j][q]))
     }
 
