@@ -1,31 +1,17 @@
 //! Tile binning: which Gaussians touch which tile.
 //!
 //! Each Gaussian covers a box of tiles (`lo..hi` per axis; the forward passes use one axis: bands
-//! of detector rows, slabs of z-slices). Binning is a counting sort: `tile_start` /
-//! `tile_gaussians` list the Gaussians of every tile in index order (a forward pass walks a
-//! tile's list and owns the tile's pixels or voxels, so it needs no atomics).
+//! of detector rows, slabs of z-slices). Binning is one parallel pass over chunks of Gaussians:
+//! each chunk lists, per tile, an item of each of its Gaussians there, in index order, and a
+//! tile's list is its chunks' lists in chunk order, so every tile lists its Gaussians in index
+//! order (a forward pass walks a tile's list and owns the tile's pixels or voxels, so it needs
+//! no atomics). The item is what the pass reads of the Gaussian: its index, or its splat with
+//! the index, so a tile's splats lie together in the order the pass reads them.
 
 use rayon::prelude::*;
 
 /// Gaussians per binning task, at least.
 const MIN_CHUNK: usize = 4096;
-
-/// Writes Gaussian indices into distinct slots of `tile_gaussians` from several tasks.
-struct SlotWriter(*mut u32);
-
-// SAFETY: tasks write disjoint slots (see `Bins::build`) and the buffer outlives them.
-unsafe impl Send for SlotWriter {}
-unsafe impl Sync for SlotWriter {}
-
-impl SlotWriter {
-    /// # Safety
-    /// `slot` is in bounds and written by no other task.
-    #[inline(always)]
-    unsafe fn write(&self, slot: usize, g: u32) {
-        // SAFETY: the caller's contract.
-        unsafe { self.0.add(slot).write(g) }
-    }
-}
 
 /// A box of tiles, `lo` inclusive, `hi` exclusive, per axis `[x, y, z]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -34,80 +20,51 @@ pub struct TileBox {
     pub hi: [usize; 3],
 }
 
-/// The Gaussians of every tile, for one pass.
+/// An item of every Gaussian of every tile, for one pass: per chunk of Gaussians, per tile.
 #[derive(Debug, Default)]
-pub struct Bins {
-    /// Tile `t`'s Gaussians are `tile_gaussians[tile_start[t]..tile_start[t + 1]]`.
-    pub tile_start: Vec<usize>,
-    pub tile_gaussians: Vec<u32>,
+pub struct Bins<T = u32> {
+    chunks: Vec<Vec<Vec<T>>>,
+    tiles: usize,
 }
 
-impl Bins {
-    /// Bin the `n` Gaussians whose boxes `box_of(i)` gives (`None`: in no tile) into a
-    /// `tiles = [tx, ty, tz]` grid; tile index `(z·ty + y)·tx + x`. The boxes are computed as
-    /// needed (once per pass, in parallel), not kept in an array of one per Gaussian.
-    ///
-    /// A counting sort in two parallel passes over chunks of Gaussians (count per tile, then
-    /// write): chunk `c`'s entries of a tile follow those of chunks `< c`, so every tile lists
-    /// its Gaussians in increasing order, as one serial pass would.
+impl<T: Copy + Send + Sync> Bins<T> {
+    /// Bin the `n` Gaussians whose boxes and items `entry(i)` gives (`None`: in no tile) into
+    /// a `tiles = [tx, ty, tz]` grid; tile index `(z·ty + y)·tx + x`. Each entry is computed
+    /// once, in parallel; nothing is kept per Gaussian.
     pub fn from_fn(
         tiles: [usize; 3],
         n: usize,
-        box_of: impl Fn(usize) -> Option<TileBox> + Sync,
+        entry: impl Fn(usize) -> Option<(TileBox, T)> + Sync,
     ) -> Self {
         let n_tiles = tiles[0] * tiles[1] * tiles[2];
         let chunk = n.div_ceil(4 * rayon::current_num_threads()).max(MIN_CHUNK);
-        let chunks: Vec<std::ops::Range<usize>> = (0..n.div_ceil(chunk))
-            .map(|c| c * chunk..((c + 1) * chunk).min(n))
-            .collect();
-        // Per chunk: its count in every tile, then (rewritten in place) its first slot there.
-        let mut cursors: Vec<Vec<usize>> = chunks
-            .par_iter()
+        let chunks = (0..n.div_ceil(chunk))
+            .into_par_iter()
             .map(|c| {
-                let mut n = vec![0usize; n_tiles];
-                for b in c.clone().filter_map(&box_of) {
-                    each_tile(tiles, &b, |t| n[t] += 1);
+                let range = c * chunk..((c + 1) * chunk).min(n);
+                // Room for each Gaussian in about two tiles, spread evenly.
+                let room = 2 * range.len() / n_tiles.max(1) + 16;
+                let mut lists: Vec<Vec<T>> =
+                    (0..n_tiles).map(|_| Vec::with_capacity(room)).collect();
+                for (b, item) in range.filter_map(&entry) {
+                    each_tile(tiles, &b, |t| lists[t].push(item));
                 }
-                n
+                lists
             })
             .collect();
-        let mut tile_start = vec![0usize; n_tiles + 1];
-        for t in 0..n_tiles {
-            let mut at = tile_start[t];
-            for n in cursors.iter_mut() {
-                (n[t], at) = (at, at + n[t]);
-            }
-            tile_start[t + 1] = at;
-        }
-        let mut tile_gaussians = vec![0u32; tile_start[n_tiles]];
-        let out = SlotWriter(tile_gaussians.as_mut_ptr());
-        cursors.par_iter_mut().enumerate().for_each(|(c, cur)| {
-            for i in chunks[c].clone() {
-                if let Some(b) = box_of(i) {
-                    each_tile(tiles, &b, |t| {
-                        let slot = cur[t];
-                        cur[t] += 1;
-                        // SAFETY: `slot < total`, and the cursors hand out every slot exactly
-                        // once over all chunks (disjoint ranges per (tile, chunk)), so no two
-                        // writes alias.
-                        unsafe { out.write(slot, i as u32) };
-                    });
-                }
-            }
-        });
         Self {
-            tile_start,
-            tile_gaussians,
+            chunks,
+            tiles: n_tiles,
         }
     }
 
     pub fn tiles(&self) -> usize {
-        self.tile_start.len() - 1
+        self.tiles
     }
 
-    /// Tile `t`'s Gaussians, in index order.
-    pub fn of(&self, t: usize) -> &[u32] {
-        &self.tile_gaussians[self.tile_start[t]..self.tile_start[t + 1]]
+    /// Tile `t`'s items, in Gaussian index order (its chunks' lists in turn).
+    pub fn of(&self, t: usize) -> impl Iterator<Item = &T> {
+        self.chunks.iter().flat_map(move |lists| &lists[t])
     }
 }
 
@@ -160,17 +117,17 @@ mod tests {
                 hi: [3, 2, 1],
             }),
         ];
-        let bins = Bins::from_fn([3, 2, 1], boxes.len(), |i| boxes[i]);
-        assert_eq!(bins.tile_gaussians.len(), 2 + 4);
+        let bins = Bins::from_fn([3, 2, 1], boxes.len(), |i| boxes[i].map(|b| (b, i as u32)));
+        let listed = |t: usize| bins.of(t).copied().collect::<Vec<u32>>();
+        assert_eq!((0..6).map(|t| listed(t).len()).sum::<usize>(), 2 + 4);
         // Tile 1 (x=1, y=0) holds Gaussians 0 and 2.
-        assert_eq!(bins.of(1), &[0, 2]);
-        assert_eq!(bins.of(0), &[0]);
-        assert_eq!(bins.of(3), &[] as &[u32]);
-        assert_eq!(bins.of(5), &[2]);
+        assert_eq!(listed(1), [0, 2]);
+        assert_eq!(listed(0), [0]);
+        assert_eq!(listed(3), [] as [u32; 0]);
+        assert_eq!(listed(5), [2]);
     }
 
-    /// Many chunks: the parallel sort equals a serial counting sort (Gaussian order in every
-    /// tile).
+    /// Many chunks: the parallel binning equals a serial one (Gaussian order in every tile).
     #[test]
     fn parallel_binning_matches_a_serial_sort() {
         let tiles = [5, 4, 3];
@@ -198,10 +155,10 @@ mod tests {
                 each_tile(tiles, b, |t| lists[t].push(g as u32));
             }
         }
-        let bins = Bins::from_fn(tiles, boxes.len(), |i| boxes[i]);
+        let bins = Bins::from_fn(tiles, boxes.len(), |i| boxes[i].map(|b| (b, i as u32)));
         assert_eq!(bins.tiles(), n_tiles);
         for (t, list) in lists.iter().enumerate() {
-            assert_eq!(bins.of(t), &list[..]);
+            assert_eq!(bins.of(t).copied().collect::<Vec<u32>>(), *list);
         }
     }
 

@@ -388,10 +388,11 @@ pub fn voxelize_forward(g: &GaussianSlices, grid: &VoxelGrid, opts: &VoxelizeOpt
     let slab = |t: usize| (t * SLAB, ((t + 1) * SLAB).min(nz));
     let bins = Bins::from_fn([1, 1, slabs], splats.len(), |at| {
         let s = &splats[at].1;
-        Some(TileBox {
+        let slabs = TileBox {
             lo: [0, 0, s.lo[2] / SLAB],
             hi: [1, 1, (s.hi[2] - 1) / SLAB + 1],
-        })
+        };
+        Some((slabs, at as u32))
     });
     let buffers: Vec<Vec<f32>> = (0..slabs)
         .into_par_iter()

@@ -81,14 +81,13 @@ pub(super) fn backward(
                     match &prep {
                         Prepared::Affine(splats) => {
                             let mut live = [false; F64_LANES];
-                            for j in 0..n {
-                                let Some(s) = splats.get(first + j) else {
-                                    continue;
-                                };
-                                let sum = &mut sums[j * stride..(j + 1) * stride];
-                                splat_backward(&s, cut2 as f32, upstream, dens(j), lanes, sum);
-                                live[j] = true;
-                            }
+                            let pass = AffineSums {
+                                splats,
+                                g,
+                                cut2: cut2 as f32,
+                                upstream,
+                            };
+                            group_sums(pass, first, n, stride, lanes, sums, &mut live);
                             if !live.contains(&true) {
                                 return;
                             }
@@ -145,6 +144,43 @@ pub(super) fn backward(
             );
     }
     total
+}
+
+/// What the affine backward's pixel sums of one view read: its splats, the Gaussians (for
+/// their densities), the cut-off and the view's upstream gradient.
+#[derive(Clone, Copy)]
+struct AffineSums<'a> {
+    splats: &'a AffineSplats<'a>,
+    g: &'a GaussianSlices<'a>,
+    cut2: f32,
+    upstream: ViewGrad<'a>,
+}
+
+dispatched! {
+    /// The pixel sums of Gaussians `first..first + n` (`stride` values each, zero on entry,
+    /// see [`backward`]) into `sums`, and which of them have a splat (`live`); `lanes` is the
+    /// kernels' scratch.
+    fn group_sums(
+        pass: AffineSums<'_>,
+        first: usize,
+        n: usize,
+        stride: usize,
+        lanes: &mut [[f32; HALF]],
+        sums: &mut [f64],
+        live: &mut [bool; F64_LANES],
+    ) {
+        let m = pass.g.channels;
+        for j in 0..n {
+            let i = first + j;
+            let Some(s) = pass.splats.get(i) else {
+                continue;
+            };
+            let dens = &pass.g.densities[m * i..m * (i + 1)];
+            let sum = &mut sums[j * stride..(j + 1) * stride];
+            splat_backward::<L>(&s, pass.cut2, pass.upstream, dens, lanes, sum);
+            live[j] = true;
+        }
+    }
 }
 
 /// A group of up to [`F64_LANES`] consecutive Gaussians in the backward pass: which have a

@@ -82,12 +82,6 @@ impl PixelSplat {
         (x0 < x1 && y0 < y1).then_some([x0, x1, y0, y1])
     }
 
-    /// The rows `[y0, y1)` of a packed record's box ([`Self::unpack`]'s, without the rest).
-    #[inline(always)]
-    pub(super) fn unpack_rows(v: &[f32], det: &Detector) -> Option<std::ops::Range<usize>> {
-        Self::unpack_box(v, det).map(|b| b[2]..b[3])
-    }
-
     /// Its rows `[y0, y1)`.
     pub(super) fn rows(&self) -> std::ops::Range<usize> {
         self.y0 as usize..self.y1 as usize
@@ -139,18 +133,6 @@ impl AffineSplats<'_> {
                 PixelSplat::unpack(&records[i * PREPARED_WIDTH..(i + 1) * PREPARED_WIDTH], det)
             }
             Self::Computed(s) => s[i],
-        }
-    }
-
-    /// Rows `[y0, y1)` of Gaussian `i`'s pixel box, `None` if it is culled (as [`Self::get`],
-    /// reading only the box of a packed record).
-    #[inline(always)]
-    pub(super) fn rows(&self, i: usize) -> Option<std::ops::Range<usize>> {
-        match self {
-            Self::Packed { records, det } => {
-                PixelSplat::unpack_rows(&records[i * PREPARED_WIDTH..(i + 1) * PREPARED_WIDTH], det)
-            }
-            Self::Computed(s) => s[i].as_ref().map(PixelSplat::rows),
         }
     }
 
@@ -325,15 +307,5 @@ pub(super) fn prepare<'a>(
                 })
                 .collect(),
         ),
-    }
-}
-
-impl Prepared<'_> {
-    /// Rows `[y0, y1)` of Gaussian `i`'s pixel box, `None` if it is culled.
-    pub(super) fn rows(&self, i: usize) -> Option<std::ops::Range<usize>> {
-        match self {
-            Prepared::Affine(s) => s.rows(i),
-            Prepared::Exact(s) => s[i].as_ref().map(|(_, px)| px[2]..px[3]),
-        }
     }
 }

@@ -122,25 +122,30 @@ impl Band {
     }
 }
 
-dispatched! {
-    /// Forward splat of `s`'s rows inside `band` into the band's buffer `buf` with per-channel
-    /// weights `w[c] = ρ_c μ`.
-    pub(super) fn splat_forward(s: &PixelSplat, band: Band, cut2: f32, w: &[f32], buf: &mut [f32]) {
-        let rows = (s.y0 as usize).max(band.y0)..(s.y1 as usize).min(band.y1);
-        let finite = w.iter().all(|w| w.is_finite());
-        for x0 in (s.x0 as usize..s.x1 as usize).step_by(HALF) {
-            let sb = SplatBlock::<L>::at(s, x0, cut2);
-            for y in rows.clone() {
-                let dy = y as f32 - s.my;
-                let Some(gdy) = row_gdy(s, dy, cut2) else {
-                    continue;
-                };
-                let e = sb.row(s, dy, gdy);
-                for (c, &w) in w.iter().enumerate() {
-                    let row = block_mut(buf, band.at(c, x0, y));
-                    let add = L::splat(w).mul(e).zero_outside(e, finite);
-                    L::load(row).add(add).store(row);
-                }
+/// Forward splat of `s`'s rows inside `band` into the band's buffer `buf` with per-channel
+/// weights `w[c] = ρ_c μ` (inlined into a dispatched pass, which picks `L`).
+#[inline(always)]
+pub(super) fn splat_forward<L: Lanes>(
+    s: &PixelSplat,
+    band: Band,
+    cut2: f32,
+    w: &[f32],
+    buf: &mut [f32],
+) {
+    let rows = (s.y0 as usize).max(band.y0)..(s.y1 as usize).min(band.y1);
+    let finite = w.iter().all(|w| w.is_finite());
+    for x0 in (s.x0 as usize..s.x1 as usize).step_by(HALF) {
+        let sb = SplatBlock::<L>::at(s, x0, cut2);
+        for y in rows.clone() {
+            let dy = y as f32 - s.my;
+            let Some(gdy) = row_gdy(s, dy, cut2) else {
+                continue;
+            };
+            let e = sb.row(s, dy, gdy);
+            for (c, &w) in w.iter().enumerate() {
+                let row = block_mut(buf, band.at(c, x0, y));
+                let add = L::splat(w).mul(e).zero_outside(e, finite);
+                L::load(row).add(add).store(row);
             }
         }
     }
@@ -178,69 +183,68 @@ fn flush<L: Lanes>(dx: L, sums: &mut [L; 3], lanes: &mut [[f32; HALF]], m: usize
     *sums = [L::zero(); 3];
 }
 
-dispatched! {
-    /// Backward sums of splat `s` over its pixel box into `acc` (zero on entry;
-    /// `[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
-    /// [`project_backward`]) from the view's upstream gradient `grad`; `lanes` is scratch of `M`
-    /// lane blocks, zero on entry and on return.
-    ///
-    /// The box is walked in lane blocks that start at its own first column (a footprint no
-    /// wider than a block is read once per row), with register accumulators of the moments of
-    /// `w G` (`w = Σ_c ρ_c g_c`) and, per channel, `g_c G`, widened every [`FLUSH_ROWS`] rows.
-    /// With one channel the sums are of `g G`, `ρ` applied at the end (`S_0` is then the zeroth
-    /// moment itself).
-    pub(super) fn splat_backward(
-        s: &PixelSplat,
-        cut2: f32,
-        grad: ViewGrad<'_>,
-        dens: &[f32],
-        lanes: &mut [[f32; HALF]],
-        acc: &mut [f64],
-    ) {
-        let UpstreamGrad { values: gv, finite } = grad.values;
-        let m = dens.len();
-        let single = m == 1;
-        let (x0, x1, y0, y1) = (s.x0 as usize, s.x1 as usize, s.y0 as usize, s.y1 as usize);
-        for bx in (x0..x1).step_by(HALF) {
-            let sb = SplatBlock::<L>::at(s, bx, cut2);
-            let mut sums = [L::zero(); 3];
-            let mut batches = RowBatches::new(FLUSH_ROWS);
-            for y in y0..y1 {
-                let dy = y as f32 - s.my;
-                let Some(gdy) = row_gdy(s, dy, cut2) else {
-                    continue;
-                };
-                let e = sb.row(s, dy, gdy);
-                let u = if single {
-                    L::load(block(gv, grad.band.at(0, bx, y)))
-                } else {
-                    let mut u = L::zero();
-                    for (c, &rho) in dens.iter().enumerate() {
-                        let gc = L::load(block(gv, grad.band.at(c, bx, y)));
-                        let sc = e.mul(gc).zero_outside(e, finite);
-                        L::load(&lanes[c]).add(sc).store(&mut lanes[c]);
-                        u = L::splat(rho).mul_add(gc, u);
-                    }
-                    u
-                };
-                let w = e.mul(u).zero_outside(e, finite);
-                let wy = w.mul(L::splat(dy));
-                let [lw, ly, lyy] = &mut sums;
-                *lw = lw.add(w);
-                *ly = ly.add(wy);
-                *lyy = wy.mul_add(L::splat(dy), *lyy);
-                if batches.due() {
-                    flush(sb.dx, &mut sums, lanes, m, acc);
+/// Backward sums of splat `s` over its pixel box into `acc` (zero on entry;
+/// `[S_0..S_{M-1}, Σ wG dx, Σ wG dy, Σ wG dx², Σ wG dxdy, Σ wG dy²]`, see
+/// [`project_backward`]) from the view's upstream gradient `grad`; `lanes` is scratch of `M`
+/// lane blocks, zero on entry and on return (inlined into a dispatched pass, which picks `L`).
+///
+/// The box is walked in lane blocks that start at its own first column (a footprint no
+/// wider than a block is read once per row), with register accumulators of the moments of
+/// `w G` (`w = Σ_c ρ_c g_c`) and, per channel, `g_c G`, widened every [`FLUSH_ROWS`] rows.
+/// With one channel the sums are of `g G`, `ρ` applied at the end (`S_0` is then the zeroth
+/// moment itself).
+#[inline(always)]
+pub(super) fn splat_backward<L: Lanes>(
+    s: &PixelSplat,
+    cut2: f32,
+    grad: ViewGrad<'_>,
+    dens: &[f32],
+    lanes: &mut [[f32; HALF]],
+    acc: &mut [f64],
+) {
+    let UpstreamGrad { values: gv, finite } = grad.values;
+    let m = dens.len();
+    let single = m == 1;
+    let (x0, x1, y0, y1) = (s.x0 as usize, s.x1 as usize, s.y0 as usize, s.y1 as usize);
+    for bx in (x0..x1).step_by(HALF) {
+        let sb = SplatBlock::<L>::at(s, bx, cut2);
+        let mut sums = [L::zero(); 3];
+        let mut batches = RowBatches::new(FLUSH_ROWS);
+        for y in y0..y1 {
+            let dy = y as f32 - s.my;
+            let Some(gdy) = row_gdy(s, dy, cut2) else {
+                continue;
+            };
+            let e = sb.row(s, dy, gdy);
+            let u = if single {
+                L::load(block(gv, grad.band.at(0, bx, y)))
+            } else {
+                let mut u = L::zero();
+                for (c, &rho) in dens.iter().enumerate() {
+                    let gc = L::load(block(gv, grad.band.at(c, bx, y)));
+                    let sc = e.mul(gc).zero_outside(e, finite);
+                    L::load(&lanes[c]).add(sc).store(&mut lanes[c]);
+                    u = L::splat(rho).mul_add(gc, u);
                 }
-            }
-            if batches.pending() {
+                u
+            };
+            let w = e.mul(u).zero_outside(e, finite);
+            let wy = w.mul(L::splat(dy));
+            let [lw, ly, lyy] = &mut sums;
+            *lw = lw.add(w);
+            *ly = ly.add(wy);
+            *lyy = wy.mul_add(L::splat(dy), *lyy);
+            if batches.due() {
                 flush(sb.dx, &mut sums, lanes, m, acc);
             }
         }
-        if single {
-            let rho = dens[0] as f64;
-            acc[1..].iter_mut().for_each(|v| *v *= rho);
+        if batches.pending() {
+            flush(sb.dx, &mut sums, lanes, m, acc);
         }
+    }
+    if single {
+        let rho = dens[0] as f64;
+        acc[1..].iter_mut().for_each(|v| *v *= rho);
     }
 }
 
