@@ -39,9 +39,12 @@ pub const GAUSSIAN_BYTES: u64 = 530;
 
 /// What a Gaussian method's training holds whatever its Gaussian count and grid: the autodiff
 /// graph's and the render's fixed buffers, per-thread scratch, the allocator's retained arenas.
-/// Measured: the intercept of peak resident size against the Gaussian count, above the scene, the
-/// outputs and the process, 43 MB at 64³ and 55 MB at 128³ (R²-Gaussian, the sweep above).
-pub const GAUSSIAN_FIXED_BYTES: u64 = 40_000_000;
+/// Measured: the intercept of peak resident size over `prism bench scaling`'s whole sweep (46
+/// runs, 64³–256³, 64²–512², 13–100 views, 2–8 channels), fitted with the terms below; 40 MB
+/// before, when the grid-sized pages of a finished channel's voxelisation
+/// ([`FINISHED_CHANNEL_VOXEL_BYTES`]) and the training targets ([`TARGET_BYTES`]) were not counted,
+/// read R²-Gaussian 33 % and 4D-SG 29 % high at 64³.
+pub const GAUSSIAN_FIXED_BYTES: u64 = 10_000_000;
 
 /// R²-Gaussian trains the channels one after another; pages the allocator keeps from one channel
 /// stay resident beside the next channel's (they are handed back lazily, see the binary's
@@ -64,8 +67,33 @@ pub const VOXELISED_BYTES: u64 = 16;
 /// R²-Gaussian (100 Gaussians), `prism info` on it at 14 MB.
 pub const RECON_BYTES: u64 = 10_000_000;
 
-/// Bytes per detector pixel of one view at an iteration's peak (image, target, SSIM maps).
-pub const PIXEL_BYTES: u64 = 200;
+/// Bytes per detector pixel of one view at an iteration's peak whatever the channel count (the
+/// SSIM term's maps, the loss's scratch), and per rendered column ([`COLUMN_PIXEL_BYTES`]: the
+/// image and its gradient). Measured: the slope of peak against the detector's pixels (64² →
+/// 512²) beyond the scene's projections, R²-Gaussian (one column) 360 and 4D-SG (three) 410
+/// bytes; one 200-byte constant per column read R²-Gaussian 11 % low and 4D-SG 17 % high.
+pub const PIXEL_BYTES: u64 = 100;
+
+/// Bytes per detector pixel and rendered column at an iteration's peak, see [`PIXEL_BYTES`].
+pub const COLUMN_PIXEL_BYTES: u64 = 50;
+
+/// Bytes per pixel of every training view and column: the training targets as tensors beside the
+/// scene's own copy. Measured: the slope of peak against the view count (13 → 100) beyond the
+/// scene, 9 (R²-Gaussian, one column) and 16 bytes (4D-SG, three) per pixel and view.
+pub const TARGET_BYTES: u64 = 8;
+
+/// R²-Gaussian voxelises each channel when its training ends; the allocator keeps those pages (the
+/// output tensor, its host copy, the voxelizer's slab buffers) while the next channel trains.
+/// Measured: the slope of peak against the grid (64³ → 256³) above the scene and outputs, 3
+/// channels: about 12 bytes per voxel more than a one-channel run holds during training.
+pub const FINISHED_CHANNEL_VOXEL_BYTES: u64 = 12;
+
+/// The share of the training's Gaussian working set still resident while 4D-SG voxelises and
+/// scores every channel (pages freed lazily). Measured: 4D-SG's final-scoring peak against the
+/// Gaussian count (10 000 → 100 000 at 128³, where scoring is the peak) grows by 0.28 kB per
+/// Gaussian, 0.5 of the 0.58 kB working set; 0.75 keeps 8 channels (the largest scoring phase
+/// swept) within 5 %. Counting all of it read 4D-SG 23 % high at 100 000 Gaussians.
+pub const RESIDENT_GAUSSIAN_SHARE: f64 = 0.75;
 
 pub use crate::evaluate::protocol::VOXEL_BYTES;
 
@@ -249,6 +277,11 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 ),
                 ((channels - 1) as f64 * RETAINED_PER_CHANNEL * working) as u64,
             );
+            f.add_in(
+                TRAINING,
+                "a finished channel's voxelisation, still resident (freed lazily)",
+                bytes(voxels, FINISHED_CHANNEL_VOXEL_BYTES as usize),
+            );
         }
         // The checkpoints keep every finished geometry stage's parameters and Adam moments
         // on the host: 3 × 4 bytes for each of a Gaussian's 11 parameters.
@@ -292,8 +325,19 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
         }
         f.add_in(
             TRAINING,
-            format!("an iteration's images ({columns} × {rows}×{cols})"),
-            bytes(view_pixels, (PIXEL_BYTES * columns as u64) as usize),
+            format!("an iteration's images and loss maps ({columns} × {rows}×{cols})"),
+            bytes(
+                view_pixels,
+                (PIXEL_BYTES + COLUMN_PIXEL_BYTES * columns as u64) as usize,
+            ),
+        );
+        f.add_in(
+            TRAINING,
+            format!("the training targets ({columns} × {train} views × {rows}×{cols})"),
+            bytes(
+                train * view_pixels,
+                (TARGET_BYTES * columns as u64) as usize,
+            ),
         );
         if config.method() == Method::FourDsg {
             f.add_in(
@@ -307,8 +351,11 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
             // Measured: without it 4D-SG with 8 channels at 128³ read 25 % low.
             f.add_in(
                 SCORING,
-                "the training's Gaussian pages, still resident (freed lazily)",
-                gaussians,
+                format!(
+                    "the training's Gaussian pages, {:.0} % still resident (freed lazily)",
+                    100.0 * RESIDENT_GAUSSIAN_SHARE
+                ),
+                (gaussians as f64 * RESIDENT_GAUSSIAN_SHARE) as u64,
             );
         }
     }
