@@ -17,7 +17,9 @@
 //! the column then costs one linear interpolation in z per plane, which AVX2 (detected at run
 //! time) gathers eight planes at a time. Rays whose dominant axis is z take the general per-ray
 //! walk. When several views are projected, the forward pass first copies the volume to z-fastest
-//! order so that sheets are built from contiguous z-lines.
+//! order so that sheets are built from contiguous z-lines. A column of one row (a fan beam) has
+//! nothing to share its sheet with: its ray computes the sheet's entries where it reads them, with
+//! the same arithmetic, bit for bit the sheet's result.
 //!
 //! The adjoint is the transpose of the same steps (rays scatter into the sheet, the sheet into the
 //! volume, identical sample positions and weights), so `⟨A x, y⟩ = ⟨x, Aᵀ y⟩` up to float rounding,
@@ -48,6 +50,9 @@ pub struct Joseph {
     /// Trace rays on column sheets where possible; when false every ray takes the general walk
     /// (the reference the tests compare the sheets against).
     sheets: bool,
+    /// Trace a column of one row (a fan beam) without building its sheet ([`LoneRay`]); when
+    /// false it builds the sheet as for many rows (the bit-for-bit reference of the tests).
+    lone: bool,
 }
 
 /// One detector column of one view: the rays of its pixels are traced together (they share their
@@ -75,6 +80,7 @@ impl Joseph {
             geometry: geometry.clone(),
             simd: has_avx2_fma(),
             sheets: true,
+            lone: true,
         })
     }
 
@@ -373,11 +379,17 @@ impl Joseph {
     ) {
         let rays = self.column_rays(col);
         let column = self.column_walk(col.cam, &rays, support);
+        // A column of one ray (a fan beam) reads the volume directly, the same sums as its sheet.
+        let lone = self.lone && out.len() == 1;
         let mut built = false;
         for (row, o) in out.iter_mut().enumerate() {
             match Self::plan_row(&rays.ray(row), column.as_ref(), support) {
                 RowPlan::Sheet(r) => {
                     let c = column.as_ref().expect("sheet rows have a column walk");
+                    if lone {
+                        *o = LoneRay::new(layout, c, support).sample(vol, &r, self.simd);
+                        continue;
+                    }
                     if !built {
                         sheet.reset(c.planes(), support.0[2], support.1[2]);
                         sheet.build(vol, layout, c, (support.0[c.j], support.1[c.j]));
@@ -448,6 +460,10 @@ impl Joseph {
             match Self::plan_row(&rays.ray(row), column.as_ref(), full) {
                 RowPlan::Sheet(r) => {
                     let c = column.as_ref().expect("sheet rows have a column walk");
+                    if self.lone && vals.len() == 1 {
+                        LoneRay::new(layout, c, full).spread(acc, &r, val);
+                        continue;
+                    }
                     if !used {
                         sheet.reset(c.planes(), full.0[2], full.1[2]);
                         used = true;
