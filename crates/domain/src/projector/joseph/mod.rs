@@ -28,9 +28,11 @@
 //!
 //! Arrays: volumes `[z][y][x]`, projections `[view][row][col]` (see `docs/geometry.md`).
 
+mod lone;
 mod sheet;
 mod walk;
 
+use lone::*;
 use sheet::*;
 use walk::*;
 pub(crate) use walk::{MAGIC, floorish, from_yxz};
