@@ -30,20 +30,21 @@ impl<'a> LoneRay<'a> {
         }
     }
 
-    /// Rows of the sheet this ray's column would build.
-    fn h(&self) -> usize {
-        self.zhi - self.zlo + 3
+    /// The volume offset (from a tap's, at z = `zlo`) of sheet row `row` (z = zlo − 1 + row);
+    /// `None` for the two end rows, which the sheet keeps zero and never scatters.
+    #[inline(always)]
+    fn row_offset(&self, row: i32) -> Option<usize> {
+        let z = row - 1;
+        (z >= 0 && z as usize <= self.zhi - self.zlo).then(|| z as usize * self.layout.stride[2])
     }
 
-    /// The sheet's entry at plane `m`, row `row` (z = zlo − 1 + row), as [`Sheet::build`] sums it.
+    /// The sheet's entry at plane `m`, row `row`, as [`Sheet::build`] sums it.
     #[inline(always)]
     fn entry(&self, vol: &[f32], taps: &[(usize, f32); 2], row: i32) -> f32 {
-        if row < 1 || row as usize > self.h() - 2 {
-            return 0.0; // the end rows stay zero
-        }
-        let sz = self.layout.stride[2];
-        let t = (row - 1) as usize * sz;
-        if sz == 1 {
+        let Some(t) = self.row_offset(row) else {
+            return 0.0;
+        };
+        if self.layout.stride[2] == 1 {
             let mut s = 0.0f32;
             for &(base, w) in taps.iter().filter(|t| t.1 != 0.0) {
                 s += w * vol[base + t];
@@ -58,10 +59,9 @@ impl<'a> LoneRay<'a> {
     /// The sheet row of the lower z neighbour of plane `m` and its weight, as the samplers find it.
     #[inline(always)]
     fn z_tap(&self, r: &SheetRay, m: usize) -> (i32, f32) {
-        let (qlo, qhi) = (self.zlo as i32 - 1, self.zhi as i32);
-        let z = r.z0 + m as f32 * r.dz;
-        let q = floorish(z).clamp(qlo, qhi);
-        (q - qlo, z - q as f32)
+        let qlo = self.zlo as i32 - 1;
+        let (q, f) = r.z_neighbour(m, qlo, self.zhi as i32);
+        (q - qlo, f)
     }
 
     /// The ray's linear sample in z at plane `m` (`fused`: as the vector sampler computes it).
@@ -119,17 +119,15 @@ impl<'a> LoneRay<'a> {
     /// plane's two z entries (the only non-zero ones) times its horizontal taps.
     #[inline(always)]
     pub(super) fn spread(&self, acc: &mut [f32], r: &SheetRay, val: f32) {
-        let sz = self.layout.stride[2];
         let w = val * r.step;
         for m in r.m0..=r.m1 {
             let (row, f) = self.z_tap(r, m);
             let wf = w * f;
             let taps = plane_taps(self.layout, self.column, m, self.zlo, self.jr);
             for (row, v) in [(row, 0.0 + (w - wf)), (row + 1, 0.0 + wf)] {
-                if row < 1 || row as usize > self.h() - 2 {
-                    continue; // the end rows are not scattered
-                }
-                let t = (row - 1) as usize * sz;
+                let Some(t) = self.row_offset(row) else {
+                    continue;
+                };
                 for &(base, tw) in taps.iter().filter(|t| t.1 != 0.0) {
                     acc[base + t] += tw * v;
                 }

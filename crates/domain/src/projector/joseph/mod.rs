@@ -454,6 +454,7 @@ impl Joseph {
     ) {
         let rays = self.column_rays(col);
         let column = self.column_walk(col.cam, &rays, full);
+        let lone = self.lone && vals.len() == 1;
         let mut used = false;
         for (row, &val) in vals.iter().enumerate() {
             if val == 0.0 {
@@ -462,7 +463,7 @@ impl Joseph {
             match Self::plan_row(&rays.ray(row), column.as_ref(), full) {
                 RowPlan::Sheet(r) => {
                     let c = column.as_ref().expect("sheet rows have a column walk");
-                    if self.lone && vals.len() == 1 {
+                    if lone {
                         LoneRay::new(layout, c, full).spread(acc, &r, val);
                         continue;
                     }

@@ -16,6 +16,17 @@ pub(super) struct SheetRay {
     pub(super) step: f32,
 }
 
+impl SheetRay {
+    /// The lower z neighbour `q` (clamped to `[qlo, qhi]`) of the ray at plane `m`, and the
+    /// weight `z − q` of the upper one (the vector sampler computes the same, lane by lane).
+    #[inline(always)]
+    pub(super) fn z_neighbour(&self, m: usize, qlo: i32, qhi: i32) -> (i32, f32) {
+        let z = self.z0 + m as f32 * self.dz;
+        let q = floorish(z).clamp(qlo, qhi);
+        (q, z - q as f32)
+    }
+}
+
 /// How one detector pixel's ray is traced.
 pub(super) enum RowPlan {
     Sheet(SheetRay),
@@ -135,9 +146,7 @@ impl Sheet {
         let (qlo, qhi) = self.q_range();
         let mut acc = 0.0f32;
         for m in r.m0..=r.m1 {
-            let z = r.z0 + m as f32 * r.dz;
-            let q = floorish(z).clamp(qlo, qhi);
-            let f = z - q as f32;
+            let (q, f) = r.z_neighbour(m, qlo, qhi);
             let idx = m * self.h + (q - qlo) as usize;
             let (a, b) = (self.data[idx], self.data[idx + 1]);
             acc += a + f * (b - a);
@@ -150,9 +159,7 @@ impl Sheet {
         let (qlo, qhi) = self.q_range();
         let w = val * r.step;
         for m in r.m0..=r.m1 {
-            let z = r.z0 + m as f32 * r.dz;
-            let q = floorish(z).clamp(qlo, qhi);
-            let f = z - q as f32;
+            let (q, f) = r.z_neighbour(m, qlo, qhi);
             let idx = m * self.h + (q - qlo) as usize;
             let wf = w * f;
             self.data[idx] += w - wf;
