@@ -2,7 +2,7 @@
 //! checkpointing of trained methods), and the scene checked and split into the observed and the
 //! held-out channels ([`Setup`]).
 
-use crate::evaluate::Evaluation;
+use crate::evaluate::{CurveScoring, Evaluation};
 use crate::record::RunDir;
 use crate::record::fingerprint::Fingerprint;
 use crate::record::resume::ResumeFile;
@@ -103,6 +103,8 @@ pub(crate) struct Setup<'a> {
     pub views: Vec<Vec<usize>>,
     /// Fraction of the volume outside the field of view (for the metrics).
     pub unseen: f64,
+    /// How training curves are scored (default: the whole grid; [`Setup::scored_as`]).
+    pub scoring: CurveScoring,
 }
 
 impl<'a> Setup<'a> {
@@ -134,7 +136,15 @@ impl<'a> Setup<'a> {
             held,
             views,
             unseen,
+            scoring: CurveScoring::default(),
         })
+    }
+
+    /// Training curves scored as `eval` takes the final metrics (inside its object mask, when
+    /// it has one).
+    pub fn scored_as(mut self, eval: &Evaluation) -> Result<Self> {
+        self.scoring = CurveScoring::of(eval, self.full)?;
+        Ok(self)
     }
 }
 

@@ -14,11 +14,12 @@ pub use protocol::{Evaluation, Protocol, ProtocolRecord, Scores, SliceAxes, scor
 use crate::record::RunDir;
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView3, Axis};
-use prism_domain::metrics::{SsimParams, projection_metrics, psnr, score_json, ssim_3d};
+use prism_domain::metrics::{Roi, SsimParams, projection_metrics, psnr, score_json, ssim_3d};
 use prism_domain::projector::Joseph;
 use prism_domain::scene::{Scene, SpectralCoordinate};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use std::sync::Arc;
 
 /// Scores of one channel.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -241,8 +242,41 @@ fn test_projection_metrics(
     )?))
 }
 
+/// How a training curve (`log.jsonl`'s `psnr`, `ssim`) scores a volume: over the whole grid
+/// ([`score_volume`]), or, where the run's final metrics are taken inside an object mask
+/// ([`Evaluation::roi`]), inside that mask as they are ([`score`], without LPIPS), so that a
+/// curve read at its last point agrees with `metrics.json` (the suite's equal-time table reads
+/// one method off its curve and the other off its metrics).
+#[derive(Clone, Default)]
+pub struct CurveScoring(Option<Arc<(Evaluation, Roi)>>);
+
+impl CurveScoring {
+    /// The scoring of runs on `scene` under `eval`.
+    pub fn of(eval: &Evaluation, scene: &Scene) -> Result<Self> {
+        let inside = eval.roi(scene)?.map(|roi| {
+            let eval = Evaluation {
+                protocol: eval.protocol.clone(),
+                lpips: None,
+            };
+            Arc::new((eval, roi))
+        });
+        Ok(CurveScoring(inside))
+    }
+
+    /// PSNR / SSIM of `pred` against `truth` (mm⁻¹, `[z][y][x]`).
+    pub fn score(&self, pred: ArrayView3<f32>, truth: ArrayView3<f32>) -> Result<(f64, f64)> {
+        match &self.0 {
+            None => score_volume(pred, truth),
+            Some(inside) => {
+                let s = score(pred, truth, &inside.0, Some(&inside.1))?;
+                Ok((s.psnr, s.ssim))
+            }
+        }
+    }
+}
+
 /// PSNR / SSIM (R²-Gaussian conventions) of `pred` against `truth`, both divided by the
-/// reference's maximum: the scores a training stage logs.
+/// reference's maximum: the scores a training stage logs over the whole grid.
 pub fn score_volume(pred: ArrayView3<f32>, truth: ArrayView3<f32>) -> Result<(f64, f64)> {
     let peak = truth.fold(0.0f32, |a, &b| a.max(b));
     if peak <= 0.0 {

@@ -91,14 +91,23 @@ pub(crate) fn run_into(
     out: &Path,
     force: bool,
 ) -> Result<Outcome> {
-    let options = RunOptions {
+    run(
+        config,
+        scene,
+        RunDir::create(out, force)?,
+        &silent(&Evaluation::default()),
+    )
+}
+
+/// CPU run options, silent, scored under `evaluation`.
+fn silent(evaluation: &Evaluation) -> RunOptions<'_> {
+    RunOptions {
         device: cpu_device(),
         from_geometry: None,
         observer: &Silent,
-        evaluation: &Evaluation::default(),
+        evaluation,
         checkpoint: None,
-    };
-    run(config, scene, RunDir::create(out, force)?, &options)
+    }
 }
 
 fn classic(method: ClassicMethod, iterations: usize) -> MethodConfig {
@@ -228,13 +237,7 @@ fn lpips_and_the_slice_protocol_reach_metrics_json() {
             "fixture.safetensors".into(),
         ))),
     };
-    let options = RunOptions {
-        device: cpu_device(),
-        from_geometry: None,
-        observer: &Silent,
-        evaluation: &eval,
-        checkpoint: None,
-    };
+    let options = silent(&eval);
     let out = dir.path().join("run");
     let m = run(
         &classic(ClassicMethod::Sart, 2),
@@ -543,13 +546,7 @@ fn a_region_of_interest_that_cannot_be_made_fails_before_the_reconstruction() {
         erode_mm: 1000.0,
         ..RoiSpec::default()
     });
-    let options = RunOptions {
-        device: cpu_device(),
-        from_geometry: None,
-        observer: &Silent,
-        evaluation: &eval,
-        checkpoint: None,
-    };
+    let options = silent(&eval);
     let e = run(
         &classic(ClassicMethod::Sart, 2),
         &sc,
@@ -570,5 +567,70 @@ fn inside(spec: prism_domain::metrics::RoiSpec) -> Evaluation {
             ..Default::default()
         },
         lpips: None,
+    }
+}
+
+/// Under an object mask, a training curve is scored inside it as the final metrics are: the
+/// last point of every channel's curve is its `metrics.json` score (the suite's equal-time table
+/// reads one method off its curve and the other off its metrics), for a Gaussian method and for
+/// NAF; over the whole grid the same volume scores otherwise.
+#[test]
+fn training_curves_are_scored_inside_the_object_as_the_metrics_are() {
+    use crate::evaluate::score_volume;
+    use prism_domain::metrics::RoiSpec;
+    let sc = scene();
+    let dir = tempfile::tempdir().unwrap();
+    let eval = inside(RoiSpec {
+        threshold: 0.2,
+        ..RoiSpec::default()
+    });
+    let options = silent(&eval);
+    for (name, yaml) in [
+        (
+            "r2gs",
+            "method: r2gs\niterations: 30\neval_every: 30\ninit: {n_points: 400}\n",
+        ),
+        (
+            "naf",
+            "method: naf\niterations: 40\neval_every: 40\nrays_per_batch: 128\n\
+             samples_per_ray: 24\nfield: {width: 16,\n  \
+             hash_grid: {levels: 4, base_resolution: 4, growth: 1.6, log2_table_size: 10}}\n",
+        ),
+    ] {
+        let config = MethodConfig::from_yaml(yaml, Path::new("m.yaml")).unwrap();
+        let out = dir.path().join(name);
+        let metrics = run(&config, &sc, RunDir::create(&out, false).unwrap(), &options)
+            .unwrap()
+            .metrics
+            .unwrap();
+        assert!(metrics.protocol.roi.starts_with("object mask"), "{name}");
+        let log = fs::read_to_string(out.join(RunDir::LOG)).unwrap();
+        let last: Vec<serde_json::Value> = log
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .collect();
+        for (c, ch) in metrics.channels.iter().enumerate() {
+            let record = last
+                .iter()
+                .rev()
+                .find(|r| r["channel"] == ch.label.as_str())
+                .unwrap_or_else(|| panic!("{name}: no curve of {}", ch.label));
+            let curve = record["psnr"].as_f64().unwrap();
+            assert!(
+                (curve - ch.scores.psnr).abs() < 1e-6,
+                "{name} {}: curve {curve} vs metrics {}",
+                ch.label,
+                ch.scores.psnr
+            );
+            let volume: Array3<f32> =
+                ndarray_npy::read_npy(out.join(format!("{}.npy", ch.label))).unwrap();
+            let reference = sc.references.as_ref().unwrap().index_axis(Axis(0), c);
+            let whole = score_volume(volume.view(), reference).unwrap().0;
+            assert!(
+                (whole - curve).abs() > 0.1,
+                "{name} {}: the whole grid scores {whole}, the mask {curve}",
+                ch.label
+            );
+        }
     }
 }

@@ -1,8 +1,8 @@
 //! Scoring a Gaussian model against reference volumes while it trains (the `psnr`/`ssim` of
-//! `log.jsonl`), with the protocol's volume score ([`crate::evaluate::score_volume`]).
+//! `log.jsonl`), as the run's curves are scored ([`CurveScoring`]).
 
 use crate::Result;
-use crate::evaluate::score_volume;
+use crate::evaluate::CurveScoring;
 use crate::gaussians::volume::{volumes, volumes_with};
 use crate::gaussians::{GaussianModel, World};
 use burn::tensor::Tensor;
@@ -16,6 +16,8 @@ pub struct Evaluator {
     pub world: World,
     /// One reference (mm⁻¹, `[z][y][x]`) per density column.
     pub references: Vec<Array3<f32>>,
+    /// Over the whole grid, or inside the run's object mask.
+    pub scoring: CurveScoring,
 }
 
 impl Evaluator {
@@ -32,7 +34,9 @@ impl Evaluator {
     fn score_volumes(&self, vols: Array4<f32>) -> Result<(f64, f64)> {
         let (mut p, mut s) = (0.0, 0.0);
         for (c, truth) in self.references.iter().enumerate() {
-            let (a, b) = score_volume(vols.index_axis(Axis(0), c), truth.view())?;
+            let (a, b) = self
+                .scoring
+                .score(vols.index_axis(Axis(0), c), truth.view())?;
             p += a;
             s += b;
         }

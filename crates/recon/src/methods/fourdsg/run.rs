@@ -49,7 +49,13 @@ pub(crate) fn shared_geometry<'o>(
     }
     let mut journal = Journal::new(RunLog::create(&dir.file(RunDir::LOG))?, observer);
     journal.checkpoints = checkpoints;
-    let shared = train_shared_geometry(config, &setup.observed, device, &mut journal)?;
+    let shared = train_shared_geometry(
+        config,
+        &setup.observed,
+        &setup.scoring,
+        device,
+        &mut journal,
+    )?;
     let c = Checkpoint {
         shared,
         stage: journal.stages.last().cloned().expect("stage 1 just ran"),
@@ -76,7 +82,7 @@ pub(crate) fn spectral(
 ) -> Result<(Volumes, Option<Volumes>, Spectral)> {
     let scene = &*setup.observed;
     let m = scene.n_channels();
-    let s = train_spectral(config, scene, shared, device, journal)?;
+    let s = train_spectral(config, scene, &setup.scoring, shared, device, journal)?;
     let info = ModelInfo {
         basis: s.basis.is_some(),
         ..ModelInfo::new(

@@ -16,7 +16,7 @@ pub(crate) mod run;
 pub use config::{NafConfig, NafMethod, StepDecay};
 pub use resume::NafCheckpoints;
 
-use crate::evaluate::score_volume;
+use crate::evaluate::CurveScoring;
 use crate::init::{density_scale, fdk_of};
 use crate::record::log::{LogRecord, LossTerms, RunLog};
 use crate::{Error, Result};
@@ -45,8 +45,9 @@ pub struct ChannelTask<'a> {
     /// All projections of the scan `[view][row][col]`, and the channel's training views.
     pub projections: ArrayView3<'a, f32>,
     pub views: &'a [usize],
-    /// The reference volume (mm⁻¹), for the log's PSNR.
+    /// The reference volume (mm⁻¹), for the log's PSNR, and how the log scores against it.
     pub reference: Option<ArrayView3<'a, f32>>,
+    pub scoring: &'a CurveScoring,
 }
 
 /// A fit that saves its state: where, the volumes of the channels fitted before this one (they
@@ -155,7 +156,7 @@ pub fn fit_channel(
             let scores = match task.reference {
                 Some(r) => {
                     let vol = log.evaluating(|| volume(&field, geometry, mu_max, device))?;
-                    let (p, q) = log.evaluating(|| score_volume(vol.view(), r))?;
+                    let (p, q) = log.evaluating(|| task.scoring.score(vol.view(), r))?;
                     if done == config.iterations {
                         last = Some(vol);
                     }

@@ -20,7 +20,7 @@ pub(crate) fn run(
     options: &RunOptions,
 ) -> Result<Option<Metrics>> {
     config.validate()?;
-    let setup = Setup::new(scene, Vec::new(), options.observer)?;
+    let setup = Setup::new(scene, Vec::new(), options.observer)?.scored_as(options.evaluation)?;
     let mut log = RunLog::create(&dir.file(RunDir::LOG))?;
     let mut volumes = Vec::new();
     let mut start = None;
@@ -50,6 +50,7 @@ pub(crate) fn run(
             projections: scene.channel_projections(c),
             views: &setup.views[c],
             reference,
+            scoring: &setup.scoring,
         };
         let vol = fit_channel(
             config,

@@ -44,6 +44,7 @@ pub(crate) fn train(
         let images = views.iter().map(|&v| image(proj, v)).collect();
         let sup = Supervision::single(geometry, &world, views, images, device);
         let eval = scene.references.as_ref().map(|r| Evaluator {
+            scoring: setup.scoring.clone(),
             grid: geometry.volume.clone(),
             world,
             references: vec![r.index_axis(Axis(0), c).to_owned()],

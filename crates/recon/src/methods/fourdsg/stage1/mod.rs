@@ -13,6 +13,7 @@ pub mod checkpoint;
 
 use super::config::{FourDsgConfig, StructuralSource};
 use crate::device::upload;
+use crate::evaluate::CurveScoring;
 use crate::gaussians::train::Evaluator;
 use crate::gaussians::train::data::{Measured, image};
 use crate::gaussians::train::{ChannelMap, Journal, Stage, Supervision};
@@ -184,10 +185,12 @@ impl Targets {
 }
 
 /// Train the shared geometry and common density of `scene` (its observed channels) on stage 1's
-/// [`targets`], initialised from the FDK of their start images.
+/// [`targets`], initialised from the FDK of their start images; its curve scored as `scoring`
+/// says.
 pub fn train_shared_geometry(
     config: &FourDsgConfig,
     scene: &Scene,
+    scoring: &CurveScoring,
     device: &Device,
     journal: &mut Journal,
 ) -> Result<SharedGeometry> {
@@ -223,6 +226,7 @@ pub fn train_shared_geometry(
     };
     // The joint fit is scored per channel, a structural one against the channels' mean.
     let eval = scene.references.as_ref().map(|r| Evaluator {
+        scoring: scoring.clone(),
         grid: geometry.volume.clone(),
         world,
         references: match head {

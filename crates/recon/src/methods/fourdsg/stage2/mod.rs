@@ -17,6 +17,7 @@ pub mod config;
 use super::config::{FourDsgConfig, FourDsgMethod};
 use crate::Result;
 use crate::device::upload;
+use crate::evaluate::CurveScoring;
 use crate::gaussians::config::GeometryConfig;
 use crate::gaussians::finish::{SharedModel, Trained};
 use crate::gaussians::host::{inverse_softplus, softplus};
@@ -57,10 +58,12 @@ impl Spectral {
     }
 }
 
-/// Train the spectral stage of `config` on `scene` (its observed channels) from `shared`.
+/// Train the spectral stage of `config` on `scene` (its observed channels) from `shared`; its
+/// curve scored as `scoring` says.
 pub fn train_spectral(
     config: &FourDsgConfig,
     scene: &Scene,
+    scoring: &CurveScoring,
     shared: SharedGeometry,
     device: &Device,
     journal: &mut Journal,
@@ -84,6 +87,7 @@ pub fn train_spectral(
         device,
     );
     let eval = scene.references.as_ref().map(|r| Evaluator {
+        scoring: scoring.clone(),
         grid: geometry.volume.clone(),
         world,
         references: (0..m)
