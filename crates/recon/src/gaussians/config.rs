@@ -275,6 +275,25 @@ pub struct LossConfig {
     /// configs written before the option existed still describe their runs.
     #[serde(skip_serializing_if = "DataWeighting::is_none")]
     pub weighting: DataWeighting,
+    /// With several channels in one model (4D-SG's stage 2), each channel's TV guided by the
+    /// channels' mean (YAML `loss.tv_guide: {eta: …}`): directional TV
+    /// ([`directional_total_variation`]), which spares a channel's gradient along the mean's
+    /// edges, in place of each channel's own TV. Absent (default): each channel's own TV, as a
+    /// model of one channel always takes. Left out of a resolved config when absent.
+    ///
+    /// [`directional_total_variation`]: crate::gaussians::train::loss::directional_total_variation
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tv_guide: Option<TvGuide>,
+}
+
+/// Directional TV's guide (YAML `loss.tv_guide`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TvGuide {
+    /// Edge parameter η as a fraction of the guide's largest gradient in the TV patch: where the
+    /// mean's gradient is well above η, a channel's gradient along it is spared; well below, TV
+    /// is isotropic.
+    pub eta: f64,
 }
 
 /// How the data term weighs a pixel's residual (YAML `loss.weighting`).
@@ -305,6 +324,7 @@ impl Default for LossConfig {
             lambda_tv: 0.05,
             tv_patch: 32,
             weighting: DataWeighting::None,
+            tv_guide: None,
         }
     }
 }
@@ -321,6 +341,14 @@ impl LossConfig {
                     format!("must be finite and ≥ 0, got {v}"),
                 ));
             }
+        }
+        if let Some(g) = &self.tv_guide
+            && !(g.eta.is_finite() && g.eta > 0.0)
+        {
+            return Err(Error::invalid(
+                "loss.tv_guide.eta",
+                format!("must be finite and > 0, got {}", g.eta),
+            ));
         }
         if self.lambda_tv > 0.0 && self.tv_patch < 2 {
             return Err(Error::invalid("loss.tv_patch", "must be at least 2 voxels"));

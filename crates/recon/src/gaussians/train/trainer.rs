@@ -17,7 +17,9 @@ use super::data::Supervision;
 use super::densify::{DensifyCounts, densify_and_prune};
 use super::draw::draw_views;
 use super::head::DensityNet;
-use super::loss::{SsimWindow, count_weights, l1, total_variation, weighted_l1};
+use super::loss::{
+    SsimWindow, count_weights, directional_total_variation, l1, total_variation, weighted_l1,
+};
 use super::settings::Stage;
 use crate::gaussians::GaussianModel;
 use crate::gaussians::config::{DataWeighting, Rates};
@@ -307,7 +309,10 @@ impl<'a> Trainer<'a> {
         let tv = if stage.loss.lambda_tv > 0.0 {
             let patch = tv_patch(&self.grid, stage.loss.tv_patch, &mut self.rng);
             let v = voxelize(&act.gaussians, &patch, &VoxelizeOptions::default())?;
-            let tv = total_variation(v);
+            let tv = match &stage.loss.tv_guide {
+                Some(g) if v.dims()[0] > 1 => directional_total_variation(v, g.eta),
+                _ => total_variation(v),
+            };
             total = total.clone() + tv.clone() * stage.loss.lambda_tv;
             Some(tv)
         } else {
