@@ -321,18 +321,30 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
         "{t}"
     );
     // The real-data suite: the bird scan imported (fan beam, one 512 × 512 slice), cut to 60 views
-    // on Cueva et al.'s geometry and to 30, 60 and 120 on the scan's own; the tooth (parallel
-    // beam, two rows) to 23 and 45.
+    // on Cueva et al.'s geometry and to 30, 60 and 120 on the scan's own, every method on each;
+    // its studies: the sweeps on the dTV protocol and the tooth (parallel beam, two rows) at 23
+    // and 45 views.
     let real = repo.join("configs/suites/real.yaml");
     let (ok, t) = prism(&["experiment", path(&real), "-o", path(&out), "--dry-run"]);
     assert!(ok, "{t}");
     assert!(
-        t.contains("6 scene cells:")
+        t.contains("4 scene cells:")
             && t.contains("scenes/bird-dtv-v60-shipped-s0  (512×512×1, 60 views, 3 channels)  to run\n      importing needs ~")
             && t.contains("scenes/bird-v120-shipped-s0  (512×512×1, 120 views, 3 channels)")
-            && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("51 run cells:")
+            && t.contains("28 run cells:")
             && t.contains("runs/bird-v30-shipped-s0/4dsg  to run\n")
+            && t.contains("runs/bird-v120-shipped-s0/naf  to run\n")
+            && t.contains("runs/bird-dtv-v60-shipped-s0/tnv  to run\n"),
+        "{t}"
+    );
+    let studies = repo.join("configs/suites/real-studies.yaml");
+    let (ok, t) = prism(&["experiment", path(&studies), "-o", path(&out), "--dry-run"]);
+    assert!(ok, "{t}");
+    assert!(
+        t.contains("3 scene cells:")
+            && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
+            && t.contains("27 run cells:")
+            && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-tv512x10  to run\n")
             && t.contains("runs/tooth-v45-shipped-s0/r2gs  to run\n"),
         "{t}"
     );
