@@ -228,14 +228,20 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
 /// for the curve-model study), its NAF companion, the paper suite at 50 views of 256³, the real-data
 /// suite's imported scans; `--study`
 /// marks the other cells as not selected, and an unknown study is refused with the known ones.
+/// The plan `prism experiment <suite> -o <out> --dry-run` prints (it must succeed).
+fn dry_run(suite: &Path, out: &Path) -> String {
+    let (ok, t) = prism(&["experiment", path(suite), "-o", path(out), "--dry-run"]);
+    assert!(ok, "{t}");
+    t
+}
+
 #[test]
 fn the_shipped_suites_plan_in_the_papers_regime() {
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let cpu = repo.join("configs/suites/cpu.yaml");
-    let (ok, t) = prism(&["experiment", path(&cpu), "-o", path(&out), "--dry-run"]);
-    assert!(ok, "{t}");
+    let t = dry_run(&cpu, &out);
     assert!(
         t.contains("15 scene cells:")
             && t.contains("scenes/head-v13-shipped-s0  (64³, 13 views, 3 channels)  to run\n")
@@ -279,9 +285,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
         !ok && t.contains("no study `tabel` (the suite has: table, noise, channels"),
         "{t}"
     );
-    let naf = repo.join("configs/suites/cpu-naf.yaml");
-    let (ok, t) = prism(&["experiment", path(&naf), "-o", path(&out), "--dry-run"]);
-    assert!(ok, "{t}");
+    let t = dry_run(&repo.join("configs/suites/cpu-naf.yaml"), &out);
     assert!(
         t.contains("2 scene cells:")
             && t.contains("6 run cells:")
@@ -293,9 +297,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     // angles, and two low-dose levels (with the Gaussian methods' noise-aware data term beside
     // their own); the joint classic baseline (TNV) beside SART; 4D-SG with R²-Gaussian's rates,
     // and the basis head on the three scenes whose channels it can form.
-    let spectral = repo.join("configs/suites/spectral.yaml");
-    let (ok, t) = prism(&["experiment", path(&spectral), "-o", path(&out), "--dry-run"]);
-    assert!(ok, "{t}");
+    let t = dry_run(&repo.join("configs/suites/spectral.yaml"), &out);
     assert!(
         t.contains("16 scene cells:")
             && t.contains("scenes/chest-v39-interleaved-s0  (64³, 39 views, 3 channels)")
@@ -310,9 +312,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("runs/kvp-v52-shipped-s0/4dsg-basis-r2rates  to run\n"),
         "{t}"
     );
-    let paper = repo.join("configs/suites/paper.yaml");
-    let (ok, t) = prism(&["experiment", path(&paper), "-o", path(&out), "--dry-run"]);
-    assert!(ok, "{t}");
+    let t = dry_run(&repo.join("configs/suites/paper.yaml"), &out);
     assert!(
         t.contains("6 scene cells:")
             && t.contains("scenes/abdomen-v50-shipped-s0  (256³, 50 views, 8 channels)")
@@ -324,9 +324,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     // on Cueva et al.'s geometry and to 30, 60 and 120 on the scan's own, every method on each;
     // its studies: the sweeps on the dTV protocol and the tooth (parallel beam, two rows) at 23
     // and 45 views.
-    let real = repo.join("configs/suites/real.yaml");
-    let (ok, t) = prism(&["experiment", path(&real), "-o", path(&out), "--dry-run"]);
-    assert!(ok, "{t}");
+    let t = dry_run(&repo.join("configs/suites/real.yaml"), &out);
     assert!(
         t.contains("4 scene cells:")
             && t.contains("scenes/bird-dtv-v60-shipped-s0  (512×512×1, 60 views, 3 channels)  to run\n      importing needs ~")
@@ -337,9 +335,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("runs/bird-dtv-v60-shipped-s0/tnv  to run\n"),
         "{t}"
     );
-    let studies = repo.join("configs/suites/real-studies.yaml");
-    let (ok, t) = prism(&["experiment", path(&studies), "-o", path(&out), "--dry-run"]);
-    assert!(ok, "{t}");
+    let t = dry_run(&repo.join("configs/suites/real-studies.yaml"), &out);
     assert!(
         t.contains("3 scene cells:")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")

@@ -103,14 +103,16 @@ pub(crate) struct Setup<'a> {
     pub views: Vec<Vec<usize>>,
     /// Fraction of the volume outside the field of view (for the metrics).
     pub unseen: f64,
-    /// How training curves are scored (default: the whole grid; [`Setup::scored_as`]).
+    /// How training curves are scored: over the whole grid, or inside the evaluation's mask.
     pub scoring: CurveScoring,
 }
 
 impl<'a> Setup<'a> {
     /// Check `scene` (and that its channels' volumes get distinct files), warn about voxels no
-    /// ray sees, and set the `held` channels aside.
-    pub fn new(scene: &'a Scene, held: Vec<usize>, observer: &dyn Observer) -> Result<Self> {
+    /// ray sees, set the `held` channels aside, and score training curves as `options`'
+    /// evaluation takes the final metrics (inside its object mask, when it has one).
+    pub fn new(scene: &'a Scene, held: Vec<usize>, options: &RunOptions) -> Result<Self> {
+        let observer = options.observer;
         scene.validate()?;
         RunDir::check_labels(scene)?;
         let unseen = check_fov(&scene.geometry).map_err(|e| Error::from(e).under("geometry"))?;
@@ -136,15 +138,8 @@ impl<'a> Setup<'a> {
             held,
             views,
             unseen,
-            scoring: CurveScoring::default(),
+            scoring: CurveScoring::of(options.evaluation, scene)?,
         })
-    }
-
-    /// Training curves scored as `eval` takes the final metrics (inside its object mask, when
-    /// it has one).
-    pub fn scored_as(mut self, eval: &Evaluation) -> Result<Self> {
-        self.scoring = CurveScoring::of(eval, self.full)?;
-        Ok(self)
     }
 }
 

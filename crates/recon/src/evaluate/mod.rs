@@ -253,14 +253,10 @@ pub struct CurveScoring(Option<Arc<(Evaluation, Roi)>>);
 impl CurveScoring {
     /// The scoring of runs on `scene` under `eval`.
     pub fn of(eval: &Evaluation, scene: &Scene) -> Result<Self> {
-        let inside = eval.roi(scene)?.map(|roi| {
-            let eval = Evaluation {
-                protocol: eval.protocol.clone(),
-                lpips: None,
-            };
-            Arc::new((eval, roi))
-        });
-        Ok(CurveScoring(inside))
+        let inside = eval.roi(scene)?;
+        Ok(CurveScoring(
+            inside.map(|roi| Arc::new((eval.without_lpips(), roi))),
+        ))
     }
 
     /// PSNR / SSIM of `pred` against `truth` (mm⁻¹, `[z][y][x]`).

@@ -149,6 +149,14 @@ impl Evaluation {
             .map_err(|e| Error::from(e).under("evaluation.roi"))
     }
 
+    /// This evaluation without LPIPS (a trial, a training curve).
+    pub fn without_lpips(&self) -> Evaluation {
+        Evaluation {
+            lpips: None,
+            ..self.clone()
+        }
+    }
+
     /// Try this evaluation on `scene` before anything is reconstructed: its mask is made and
     /// every reference scored against itself, so an evaluation that cannot run (a grid smaller
     /// than the SSIM window, a reference with no positive value, a mask that cannot be made)
@@ -157,10 +165,7 @@ impl Evaluation {
     /// when the evaluation was made).
     pub fn check(&self, scene: &Scene) -> Result<()> {
         let roi = self.roi(scene)?;
-        let trial = Evaluation {
-            lpips: None,
-            ..self.clone()
-        };
+        let trial = self.without_lpips();
         if let Some(refs) = &scene.references {
             for (c, ch) in scene.channels.iter().enumerate() {
                 let r = refs.index_axis(ndarray::Axis(0), c);

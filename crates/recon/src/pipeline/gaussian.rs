@@ -57,7 +57,7 @@ pub(super) fn run(
             c.holdout_indices(scene)?
         }
     };
-    let setup = Setup::new(scene, held, options.observer)?.scored_as(options.evaluation)?;
+    let setup = Setup::new(scene, held, options)?;
     let device = &options.device;
     let checkpoints = checkpoints(config, scene, options)?;
     let (mut journal, observed, predicted, trained) = match config {

@@ -18,7 +18,7 @@ pub(crate) fn run(
 ) -> Result<Option<Metrics>> {
     let observer = options.observer;
     config.validate()?;
-    let setup = Setup::new(scene, Vec::new(), observer)?;
+    let setup = Setup::new(scene, Vec::new(), options)?;
     let iters = config.resolved_iterations();
     let start = Instant::now();
     let volumes = if config.method == ClassicMethod::Tv {

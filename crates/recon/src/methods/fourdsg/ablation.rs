@@ -148,7 +148,7 @@ pub fn ablate(
     }
     base.validate()?;
     let observer = options.observer;
-    let setup = Setup::new(scene, base.holdout_indices(scene)?, observer)?;
+    let setup = Setup::new(scene, base.holdout_indices(scene)?, options)?;
     if setup.observed.n_channels() < 2 {
         return Err(Error::invalid(
             "channels",

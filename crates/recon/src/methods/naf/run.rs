@@ -20,7 +20,7 @@ pub(crate) fn run(
     options: &RunOptions,
 ) -> Result<Option<Metrics>> {
     config.validate()?;
-    let setup = Setup::new(scene, Vec::new(), options.observer)?.scored_as(options.evaluation)?;
+    let setup = Setup::new(scene, Vec::new(), options)?;
     let mut log = RunLog::create(&dir.file(RunDir::LOG))?;
     let mut volumes = Vec::new();
     let mut start = None;
