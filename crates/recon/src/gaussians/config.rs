@@ -8,6 +8,7 @@ use crate::device::DeviceChoice;
 use crate::{Error, Result};
 use prism_render::{ProjectOptions, ProjectionMode};
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 /// The geometry stage's configuration: a set of 3D Gaussians initialised from FDK and fitted to
 /// projections. Lengths are in the normalised world (the volume's largest edge spans 2),
@@ -279,11 +280,19 @@ pub struct LossConfig {
     /// channels' mean (YAML `loss.tv_guide: {eta: …}`): directional TV
     /// ([`directional_total_variation`]), which spares a channel's gradient along the mean's
     /// edges, in place of each channel's own TV. Absent (default): each channel's own TV, as a
-    /// model of one channel always takes. Left out of a resolved config when absent.
+    /// model of one channel (or of basis materials: stage 1's joint fit; the basis head
+    /// refuses it) always takes. Left out of a resolved config when absent.
     ///
     /// [`directional_total_variation`]: crate::gaussians::train::loss::directional_total_variation
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tv_guide: Option<TvGuide>,
+    /// Each channel's TV weight as a multiple of `lambda_tv`, by channel label (YAML
+    /// `loss.tv_channel_weight: {120kVp: 3}`; a channel not named weighs 1). It applies where a
+    /// model's densities are the scene's channels: each of R²-Gaussian's channel models and the
+    /// channels of 4D-SG's stage 2; stage 1's common density keeps `lambda_tv`, and the basis
+    /// head (whose TV is over materials) refuses it. Left out of a resolved config when empty.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub tv_channel_weight: BTreeMap<String, f64>,
 }
 
 /// Directional TV's guide (YAML `loss.tv_guide`).
@@ -325,6 +334,7 @@ impl Default for LossConfig {
             tv_patch: 32,
             weighting: DataWeighting::None,
             tv_guide: None,
+            tv_channel_weight: BTreeMap::new(),
         }
     }
 }
@@ -350,10 +360,37 @@ impl LossConfig {
                 format!("must be finite and > 0, got {}", g.eta),
             ));
         }
+        for (label, &w) in &self.tv_channel_weight {
+            if !(w.is_finite() && w >= 0.0) {
+                return Err(Error::invalid(
+                    format!("loss.tv_channel_weight.{label}"),
+                    format!("must be finite and ≥ 0, got {w}"),
+                ));
+            }
+        }
         if self.lambda_tv > 0.0 && self.tv_patch < 2 {
             return Err(Error::invalid("loss.tv_patch", "must be at least 2 voxels"));
         }
         Ok(())
+    }
+
+    /// The TV weight of each of `channels` (labels, in a model's channel order) as a multiple of
+    /// `lambda_tv`; an error names a key of `tv_channel_weight` that is none of them.
+    pub fn channel_tv_weights(&self, channels: &[&str]) -> Result<Vec<f64>> {
+        if let Some(label) = self
+            .tv_channel_weight
+            .keys()
+            .find(|l| !channels.contains(&l.as_str()))
+        {
+            return Err(Error::invalid(
+                format!("loss.tv_channel_weight.{label}"),
+                format!("no channel `{label}` (channels: {channels:?})"),
+            ));
+        }
+        Ok(channels
+            .iter()
+            .map(|c| self.tv_channel_weight.get(*c).copied().unwrap_or(1.0))
+            .collect())
     }
 }
 
@@ -478,5 +515,35 @@ pub mod flat {
             }
         }
         out.serialize(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn channel_tv_weights_follow_the_labels_and_name_an_unknown_one() {
+        let mut loss = LossConfig::default();
+        assert_eq!(
+            loss.channel_tv_weights(&["50kVp", "80kVp"]).unwrap(),
+            [1.0, 1.0]
+        );
+        loss.tv_channel_weight.insert("80kVp".into(), 3.0);
+        assert_eq!(
+            loss.channel_tv_weights(&["50kVp", "80kVp"]).unwrap(),
+            [1.0, 3.0]
+        );
+        let e = loss.channel_tv_weights(&["50kVp"]).unwrap_err().to_string();
+        assert!(
+            e.contains("loss.tv_channel_weight.80kVp") && e.contains("50kVp"),
+            "{e}"
+        );
+        loss.tv_channel_weight.insert("120kVp".into(), -1.0);
+        let e = loss.validate().unwrap_err().to_string();
+        assert!(e.contains("loss.tv_channel_weight.120kVp"), "{e}");
+        // Empty, it stays out of a resolved config (old configs still describe their runs).
+        let yaml = serde_yaml_ng::to_string(&LossConfig::default()).unwrap();
+        assert!(!yaml.contains("tv_channel_weight"), "{yaml}");
     }
 }

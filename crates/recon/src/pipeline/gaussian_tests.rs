@@ -5,7 +5,7 @@ use super::tests::scene;
 use super::{RunDir, RunOptions, run};
 use crate::device::cpu_device;
 use crate::evaluate::{Evaluation, Metrics};
-use crate::gaussians::config::{DataWeighting, DensifyConfig, InitConfig};
+use crate::gaussians::config::{DataWeighting, DensifyConfig, InitConfig, TvGuide};
 use crate::gaussians::host::{self, HostGaussians, ScaleBounds, inverse_softplus};
 use crate::gaussians::io::{ModelInfo, load_model, save_model, write_ply};
 use crate::gaussians::train::densify::densify_and_prune;
@@ -141,6 +141,41 @@ fn count_weighting_reaches_both_stages_of_4dsg() {
             .all(|c| c.scores.psnr.is_finite() && c.scores.psnr > 15.0),
         "{:?}",
         m.channels
+    );
+}
+
+/// `loss.tv_channel_weight` weighs one channel's TV: R²-Gaussian with λ_TV = 0.05 and channel
+/// 1's weight 2 trains channel 1 exactly as λ_TV = 0.1 does (TV is positively homogeneous and
+/// ×2 is exact in floating point), and channel 0 as λ_TV = 0.05 does, not as 0.1.
+#[test]
+fn a_channel_tv_weight_is_that_channels_lambda_tv_scaled() {
+    let scene = scene();
+    let dev = cpu_device();
+    let mut weighted = tiny_r2gs();
+    weighted.geometry.iterations = 20;
+    weighted.geometry.loss.lambda_tv = 0.05;
+    let mut doubled = weighted.clone();
+    doubled.geometry.loss.lambda_tv = 0.1;
+    weighted
+        .geometry
+        .loss
+        .tv_channel_weight
+        .insert(scene.channels[1].label.clone(), 2.0);
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    run_on(&weighted, &scene, a.path(), &dev).unwrap();
+    run_on(&doubled, &scene, b.path(), &dev).unwrap();
+    let volume = |dir: &Path, c: usize| -> ndarray::Array3<f32> {
+        ndarray_npy::read_npy(dir.join(RunDir::volume_file(&scene.channels[c].label))).unwrap()
+    };
+    assert_ne!(
+        volume(a.path(), 0),
+        volume(b.path(), 0),
+        "channel 0 keeps λ_TV = 0.05"
+    );
+    assert_eq!(
+        volume(a.path(), 1),
+        volume(b.path(), 1),
+        "channel 1 trains as with λ_TV = 0.1"
     );
 }
 
@@ -589,9 +624,16 @@ fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
     );
     assert_eq!(stages(b.path()).as_array().unwrap().len(), 2);
 
-    // Spectral-stage settings may change; stage-1 settings and the scene may not.
+    // Spectral-stage settings may change (the loss's channel settings among them: stage 1 fits
+    // one common density); stage-1 settings and the scene may not.
     let mut other_stage2 = cfg.clone();
     other_stage2.spectral.stage2.iterations = 2;
+    other_stage2.geometry.loss.tv_guide = Some(TvGuide { eta: 0.1 });
+    other_stage2
+        .geometry
+        .loss
+        .tv_channel_weight
+        .insert(scene.channels[2].label.clone(), 3.0);
     let c = tempfile::tempdir().unwrap();
     run_from(&other_stage2, &scene, c.path(), &dev, Some(&ckpt)).unwrap();
     let mut other_init = cfg.clone();

@@ -22,6 +22,10 @@ pub struct Fingerprint {
     /// from an older file stands for.
     #[serde(skip)]
     defaults: Value,
+    /// The settings left out (not saved): also left out of a saved state's settings when the
+    /// two are compared, so a state written before a key was ignored still serves.
+    #[serde(skip)]
+    ignored: Vec<String>,
 }
 
 /// Two fingerprints are equal when their scene and settings are.
@@ -40,8 +44,9 @@ const NEVER: [&str; 2] = ["device", "checkpoint_every"];
 const BEFORE: [(&str, &str); 1] = [("views_per_step", "one")];
 
 impl Fingerprint {
-    /// The fingerprint of `config` on `scene`, leaving out the keys `ignore` (and [`NEVER`]);
-    /// `extra` entries are added to the settings (options outside the config).
+    /// The fingerprint of `config` on `scene`, leaving out the keys `ignore` (dotted for a key
+    /// inside a section, `loss.tv_guide`) and [`NEVER`]; `extra` entries are added to the
+    /// settings (options outside the config).
     pub fn new<C: Serialize + Default>(
         config: &C,
         scene: &Scene,
@@ -50,10 +55,11 @@ impl Fingerprint {
     ) -> Result<Self> {
         let mut settings = serde_json::to_value(config)
             .map_err(|e| Error::invalid("config", format!("not serialisable: {e}")))?;
+        let ignored: Vec<String> = ignore.iter().chain(&NEVER).map(|k| k.to_string()).collect();
+        for key in &ignored {
+            remove_key(&mut settings, key);
+        }
         if let Value::Object(map) = &mut settings {
-            for key in ignore.iter().chain(&NEVER) {
-                map.remove(*key);
-            }
             for (key, v) in extra {
                 map.insert(key.to_string(), v.clone());
             }
@@ -72,6 +78,7 @@ impl Fingerprint {
             scene_digest: scene_digest(scene),
             settings,
             defaults,
+            ignored,
         })
     }
 
@@ -85,8 +92,12 @@ impl Fingerprint {
                 self.scene, self.scene_digest, wanted.scene, wanted.scene_digest
             ));
         }
-        let (Value::Object(a), Value::Object(b)) = (&self.settings, &wanted.settings) else {
-            return (self.settings != wanted.settings).then(|| "the settings differ".into());
+        let mut saved = self.settings.clone();
+        for key in &wanted.ignored {
+            remove_key(&mut saved, key);
+        }
+        let (Value::Object(a), Value::Object(b)) = (&saved, &wanted.settings) else {
+            return (saved != wanted.settings).then(|| "the settings differ".into());
         };
         let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
         keys.sort();
@@ -105,6 +116,24 @@ impl Fingerprint {
             })
             .collect();
         (!differ.is_empty()).then(|| format!("the settings differ: {}", differ.join("; ")))
+    }
+}
+
+/// Remove the dotted `key` (`loss.tv_guide`) from the sections of `settings`, if present.
+fn remove_key(settings: &mut Value, key: &str) {
+    let (parent, last) = match key.rsplit_once('.') {
+        Some((p, l)) => (Some(p), l),
+        None => (None, key),
+    };
+    let mut node = settings;
+    for seg in parent.into_iter().flat_map(|p| p.split('.')) {
+        match node.get_mut(seg) {
+            Some(n) => node = n,
+            None => return,
+        }
+    }
+    if let Value::Object(map) = node {
+        map.remove(last);
     }
 }
 

@@ -203,8 +203,13 @@ pub fn composed_total_variation(v: Tensor<4>) -> Tensor<1> {
 /// differences, over the voxels where every axis longer than one voxel has its next neighbour.
 /// Where the guide is flat (`|∇g| ≪ η`) this is isotropic TV; across the guide's edges a channel's
 /// gradient along `∇g` costs almost nothing, so the channels are drawn to share edges, not values.
-/// `eta → ∞` is isotropic TV of each channel.
-pub fn directional_total_variation(v: Tensor<4>, eta: f64) -> Tensor<1> {
+/// `eta → ∞` is isotropic TV of each channel. With `weights` (`[M, 1, 1, 1]`), channel `m`'s
+/// term is weighted by `weights[m]` (the guide stays the unweighted mean).
+pub fn directional_total_variation(
+    v: Tensor<4>,
+    eta: f64,
+    weights: Option<Tensor<4>>,
+) -> Tensor<1> {
     let dims = v.dims();
     let axes: Vec<usize> = (1..4).filter(|&a| dims[a] > 1).collect();
     if axes.is_empty() {
@@ -244,7 +249,11 @@ pub fn directional_total_variation(v: Tensor<4>, eta: f64) -> Tensor<1> {
         .expect("an axis");
     // √(p² + ε²): differentiable where a channel is flat (ε = 10⁻⁸, far below a voxel step of
     // any density the renders resolve).
-    (p2 + 1e-16).sqrt().mean()
+    let norm = (p2 + 1e-16).sqrt();
+    match weights {
+        Some(w) => (norm * w).mean(),
+        None => norm.mean(),
+    }
 }
 
 #[cfg(test)]
@@ -482,7 +491,7 @@ mod tests {
             let n: usize = dims.iter().product();
             let data = image(1, n, 3);
             let v = Tensor::<4>::from_data(TensorData::new(data.clone(), dims), &dev);
-            let got: f32 = directional_total_variation(v, 1e6).into_scalar();
+            let got: f32 = directional_total_variation(v, 1e6, None).into_scalar();
             let want = isotropic_tv(&data, dims);
             assert!(
                 (got as f64 - want).abs() < 1e-5 * want,
@@ -498,7 +507,7 @@ mod tests {
             .chain(half.iter().map(|a| -a))
             .collect();
         let v = Tensor::<4>::from_data(TensorData::new(data.clone(), dims), &dev);
-        let got: f32 = directional_total_variation(v, 0.01).into_scalar();
+        let got: f32 = directional_total_variation(v, 0.01, None).into_scalar();
         let want = isotropic_tv(&data, dims);
         assert!((got as f64 - want).abs() < 1e-5 * want, "{got} vs {want}");
     }
@@ -521,23 +530,34 @@ mod tests {
             grads.iter().map(|d| d[0]).sum::<f64>() / 3.0,
             grads.iter().map(|d| d[1]).sum::<f64>() / 3.0,
         ];
-        for eta in [0.1f64, 1.0, 3.0] {
+        // Channel weights scale each channel's cost; the guide stays the unweighted mean.
+        for (eta, w) in [
+            (0.1f64, None),
+            (1.0, None),
+            (3.0, None),
+            (0.1, Some([0.5f64, 1.0, 3.0])),
+        ] {
             let norm = (g[0] * g[0] + g[1] * g[1]).sqrt() * (1.0 + eta * eta).sqrt();
             let xi = [g[0] / norm, g[1] / norm];
             let want = grads
                 .iter()
-                .map(|d| {
+                .zip(w.unwrap_or([1.0; 3]))
+                .map(|(d, w)| {
                     let along = xi[0] * d[0] + xi[1] * d[1];
                     let p = [d[0] - xi[0] * along, d[1] - xi[1] * along];
-                    (p[0] * p[0] + p[1] * p[1]).sqrt()
+                    w * (p[0] * p[0] + p[1] * p[1]).sqrt()
                 })
                 .sum::<f64>()
                 / 3.0;
             let v = Tensor::<4>::from_data(TensorData::new(data.clone(), [3, 1, y, x]), &dev);
-            let got: f32 = directional_total_variation(v, eta).into_scalar();
+            let weights = w.map(|w| {
+                let w: Vec<f32> = w.iter().map(|&a| a as f32).collect();
+                Tensor::<4>::from_data(TensorData::new(w, [3, 1, 1, 1]), &dev)
+            });
+            let got: f32 = directional_total_variation(v, eta, weights).into_scalar();
             assert!(
                 (got as f64 - want).abs() < 1e-5 * want,
-                "η {eta}: {got} vs {want}"
+                "η {eta}, weights {w:?}: {got} vs {want}"
             );
         }
     }
@@ -552,7 +572,7 @@ mod tests {
         let dims = [2usize, 1, y, x];
         let data: Vec<f32> = step(1.0).chain(step(2.0)).collect();
         let v = Tensor::<4>::from_data(TensorData::new(data.clone(), dims), &dev);
-        let got: f32 = directional_total_variation(v, 0.01).into_scalar();
+        let got: f32 = directional_total_variation(v, 0.01, None).into_scalar();
         let want = isotropic_tv(&data, dims) * 1e-4 / (1.0 + 1e-4);
         // f32: 1 − |ξ|² ≈ 10⁻⁴ is a difference of numbers near 1 (relative error ~10⁻³).
         assert!((got as f64 - want).abs() < 1e-2 * want, "{got} vs {want}");

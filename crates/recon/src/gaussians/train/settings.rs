@@ -20,6 +20,10 @@ pub struct Stage<'a> {
     pub learn: Learnable,
     pub lr: &'a LearningRates,
     pub loss: &'a LossConfig,
+    /// Each rendered channel's TV weight as a multiple of `loss.lambda_tv`, in the model's
+    /// channel order (`loss.tv_channel_weight` resolved against the channels' labels); empty:
+    /// every channel weighs 1.
+    pub tv_weights: Vec<f64>,
     /// How many training views a step fits.
     pub views_per_step: ViewsPerStep,
     /// How the training views are rendered.
@@ -81,6 +85,7 @@ impl<'a> Stage<'a> {
             learn: Learnable::ALL,
             lr: &config.lr,
             loss: &config.loss,
+            tv_weights: Vec::new(),
             views_per_step: config.views_per_step,
             projection: config.projection.options(),
             densify: config.densify.as_ref(),

@@ -20,13 +20,13 @@ use super::head::DensityNet;
 use super::loss::{
     SsimWindow, count_weights, directional_total_variation, l1, total_variation, weighted_l1,
 };
-use super::settings::Stage;
+use super::settings::{ChannelMap, Stage};
 use crate::gaussians::GaussianModel;
 use crate::gaussians::config::{DataWeighting, Rates};
 use crate::gaussians::model::softplus;
 use crate::record::log::LossTerms;
 use crate::{Error, Result};
-use burn::tensor::Tensor;
+use burn::tensor::{Tensor, TensorData};
 use prism_domain::geometry::VolumeGrid;
 use prism_render::{VoxelGrid, VoxelizeOptions, project, screen_grad_norm, screen_probe, voxelize};
 use rand::{Rng, SeedableRng};
@@ -104,6 +104,8 @@ pub struct Trainer<'a> {
     ndc: f32,
     /// Each view's pixel weights in the L1 term, when the loss weighs them.
     weights: Option<Vec<Tensor<4>>>,
+    /// Each channel's TV weight `[M, 1, 1, 1]` relative to `λ_tv`, when one differs from 1.
+    tv_weights: Option<Tensor<4>>,
 }
 
 impl<'a> Trainer<'a> {
@@ -132,7 +134,21 @@ impl<'a> Trainer<'a> {
                 ),
             ));
         }
+        if !stage.tv_weights.is_empty() && stage.tv_weights.len() != columns {
+            return Err(Error::invalid(
+                "loss.tv_channel_weight",
+                format!(
+                    "{} channel weights for a model of {columns} density columns",
+                    stage.tv_weights.len()
+                ),
+            ));
+        }
         let device = model.device();
+        let tv_weights = stage.tv_weights.iter().any(|&w| w != 1.0).then(|| {
+            let w: Vec<f32> = stage.tv_weights.iter().map(|&w| w as f32).collect();
+            let m = w.len();
+            Tensor::from_data(TensorData::new(w, [m, 1, 1, 1]), &model.device().autodiff())
+        });
         let grid = stage.world.volume(stage.grid);
         let stats = stage
             .densification()
@@ -145,6 +161,7 @@ impl<'a> Trainer<'a> {
         };
         Ok(Trainer {
             weights,
+            tv_weights,
             window: SsimWindow::new(&device.autodiff()),
             rng: ChaCha8Rng::seed_from_u64(stage.seed),
             order: Vec::new(),
@@ -309,9 +326,17 @@ impl<'a> Trainer<'a> {
         let tv = if stage.loss.lambda_tv > 0.0 {
             let patch = tv_patch(&self.grid, stage.loss.tv_patch, &mut self.rng);
             let v = voxelize(&act.gaussians, &patch, &VoxelizeOptions::default())?;
+            let w = self.tv_weights.clone();
+            // Directional TV where the model's densities are several channels (not a basis
+            // head's materials).
+            let channels = v.dims()[0] > 1 && matches!(stage.map, ChannelMap::Direct);
             let tv = match &stage.loss.tv_guide {
-                Some(g) if v.dims()[0] > 1 => directional_total_variation(v, g.eta),
-                _ => total_variation(v),
+                Some(g) if channels => directional_total_variation(v, g.eta, w),
+                // TV is positively homogeneous: the TV of `w_m·v_m` is `w_m` times `v_m`'s.
+                _ => total_variation(match w {
+                    Some(w) => v * w,
+                    None => v,
+                }),
             };
             total = total.clone() + tv.clone() * stage.loss.lambda_tv;
             Some(tv)

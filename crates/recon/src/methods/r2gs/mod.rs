@@ -36,6 +36,8 @@ pub(crate) fn train(
     let geometry = &scene.geometry;
     let mut out = Vec::new();
     let mut models = Vec::new();
+    let labels: Vec<&str> = scene.channels.iter().map(|c| c.label.as_str()).collect();
+    let tv_weights = config.loss.channel_tv_weights(&labels)?;
     for (c, ch) in scene.channels.iter().enumerate() {
         let views = &setup.views[c];
         let proj = scene.channel_projections(c);
@@ -49,7 +51,10 @@ pub(crate) fn train(
             world,
             references: vec![r.index_axis(Axis(0), c).to_owned()],
         });
-        let stage = Stage::geometry(config, "r2gs", &ch.label, &geometry.volume, &world);
+        let stage = Stage {
+            tv_weights: vec![tv_weights[c]],
+            ..Stage::geometry(config, "r2gs", &ch.label, &geometry.volume, &world)
+        };
         journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
         let stem = RunDir::stem(&ch.label);
         let info = ModelInfo::new(setup.full, scene, &[c], config.projection);

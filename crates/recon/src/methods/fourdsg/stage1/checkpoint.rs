@@ -37,12 +37,21 @@ pub const GEOMETRY_FILE: &str = "geometry.safetensors";
 const FORMAT: &str = "prism-geometry/1";
 
 /// What a stage-1 result depends on: the scene and the config without the settings stage 1
-/// does not read (`method`, `stage2`, `density_iterations`, `eval_every`).
+/// does not read (`method`, `stage2`, `density_iterations`, `eval_every`, and the loss's
+/// channel settings: stage 1 fits one common density, so `loss.tv_guide` and
+/// `loss.tv_channel_weight` do not reach it).
 pub fn fingerprint(config: &FourDsgConfig, scene: &Scene) -> Result<Fingerprint> {
     Fingerprint::new(
         config,
         scene,
-        &["method", "stage2", "density_iterations", "eval_every"],
+        &[
+            "method",
+            "stage2",
+            "density_iterations",
+            "eval_every",
+            "loss.tv_guide",
+            "loss.tv_channel_weight",
+        ],
         &[],
     )
 }

@@ -15,7 +15,6 @@
 pub mod config;
 
 use super::config::{FourDsgConfig, FourDsgMethod};
-use crate::Result;
 use crate::device::upload;
 use crate::evaluate::CurveScoring;
 use crate::gaussians::config::GeometryConfig;
@@ -27,6 +26,7 @@ use crate::gaussians::train::{ChannelMap, ChannelMix, DensityNet, Journal, Stage
 use crate::gaussians::{GaussianModel, Learnable, World};
 use crate::methods::fourdsg::heads::{BasisHead, CurveFit};
 use crate::methods::fourdsg::stage1::SharedGeometry;
+use crate::{Error, Result};
 use burn::optim::AdamConfig;
 use burn::tensor::{Device, Tensor};
 use config::Stage2Config;
@@ -95,9 +95,23 @@ pub fn train_spectral(
             .collect(),
     });
     let ratios = scene.channel_ratios(&sviews);
+    let labels: Vec<&str> = scene.channels.iter().map(|c| c.label.as_str()).collect();
+    let tv_weights = config.geometry.loss.channel_tv_weights(&labels)?;
     let mut head = None;
     let raw = match (config.method, &config.spectral.stage2.basis) {
         (FourDsgMethod::Full, Some(cfg)) => {
+            let loss = &config.geometry.loss;
+            for (set, field) in [
+                (!loss.tv_channel_weight.is_empty(), "loss.tv_channel_weight"),
+                (loss.tv_guide.is_some(), "loss.tv_guide"),
+            ] {
+                if set {
+                    return Err(Error::invalid(
+                        field,
+                        "the basis head's TV is over its basis materials, not the channels",
+                    ));
+                }
+            }
             let (specs, exact) = channel_specs(scene)?;
             if !exact {
                 journal.observer.note(
@@ -117,6 +131,7 @@ pub fn train_spectral(
                     "basis",
                     &geometry.volume,
                     &world,
+                    Vec::new(),
                 )
             };
             journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
@@ -149,6 +164,7 @@ pub fn train_spectral(
                 s2.curve_model.kind.name(),
                 &geometry.volume,
                 &world,
+                tv_weights.clone(),
             );
             journal.train(
                 &mut model,
@@ -188,6 +204,7 @@ pub fn train_spectral(
                     "densities",
                     &geometry.volume,
                     &world,
+                    tv_weights.clone(),
                 )
             };
             journal.train(&mut model, &sup, eval.as_ref(), &stage, None)?;
@@ -203,16 +220,19 @@ pub fn train_spectral(
 }
 
 /// The spectral stage of the geometry stage `config` named `name`: `stage2`'s iterations and
-/// freezing, no densification, its own seed, every channel fitted.
+/// freezing, no densification, its own seed, every channel fitted (their TV weighted as
+/// `loss.tv_channel_weight` says, for `tv_weights`, the channels' weights).
 fn spectral_stage<'a>(
     config: &'a GeometryConfig,
     stage2: &Stage2Config,
     name: &'a str,
     grid: &'a VolumeGrid,
     world: &'a World,
+    tv_weights: Vec<f64>,
 ) -> Stage<'a> {
     Stage {
         iterations: stage2.iterations,
+        tv_weights,
         learn: stage2.freeze.learnable(),
         densify: None,
         seed: config.seed.wrapping_add(1),
