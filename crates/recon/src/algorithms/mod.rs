@@ -14,14 +14,16 @@ pub mod cgls;
 pub mod fdk;
 pub mod filter;
 pub mod gradient;
+pub mod guide;
 pub mod sart;
 pub mod tv;
 
 pub use cgls::cgls;
 pub use fdk::{ScanKind, fdk, scan_kind};
 pub use filter::{RampFilter, Window};
+pub use guide::Directions;
 pub use sart::{Order, SartOptions, sart};
-pub use tv::{ChannelData, Coupling, TvOptions, Weighting, tv};
+pub use tv::{ChannelData, Coupling, TvOptions, Weighting, tv, tv_guided};
 
 use ndarray::Array3;
 use rayon::prelude::*;

@@ -27,6 +27,12 @@
 //! x̄_c ← 2 x_c⁺ − x_c
 //! ```
 //!
+//! **Directional TV** ([`tv_guided`]; Ehrhardt & Betcke 2016, Cueva et al. 2021): `∇` becomes `P∇`
+//! with `P = I − ξξᵀ` at each voxel from a guide image ([`Directions`]), so a gradient along the
+//! guide's edges costs little; with channel coupling this is dTV. `P` is symmetric, so the
+//! adjoint is `∇ᵀP`; `P∇`'s row and column sums are at most [`Directions::bound`] times `∇`'s, and
+//! `σ_q` and the gradient block's share of `τ_c` are scaled by it.
+//!
 //! `Π_λ` is the projection onto the dual ball of `R` (radius λ in the dual norm): per-channel
 //! 3-vectors clipped to length λ, the whole 3·C group clipped to length λ, or `J`'s singular
 //! values clipped at λ. The step sizes are the row and column sums of `|K|`, which guarantee
@@ -34,6 +40,7 @@
 //! SART. Units: λ is in mm (data term: squared line integrals; regulariser: mm⁻¹).
 
 use super::gradient::Gradient;
+use super::guide::Directions;
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView3};
 use prism_domain::projector::Joseph;
@@ -142,10 +149,23 @@ pub fn tv(
     opts: &TvOptions,
     progress: &mut dyn FnMut(usize),
 ) -> Result<Vec<Array3<f32>>> {
+    tv_guided(channels, opts, None, progress)
+}
+
+/// [`tv`] with directional TV: every channel's gradient `∇x_c` replaced by `P∇x_c`, `P` the
+/// projection of `directions` at each voxel ([`Directions`]; `K`'s gradient block becomes
+/// `s w_c P∇`, its steps scaled by [`Directions::bound`]). `None` is [`tv`].
+pub fn tv_guided(
+    channels: &[ChannelData],
+    opts: &TvOptions,
+    directions: Option<&Directions>,
+    progress: &mut dyn FnMut(usize),
+) -> Result<Vec<Array3<f32>>> {
     opts.validate()?;
     let shape = check(channels)?;
     let grad = Gradient::new(shape);
     let n = grad.voxels();
+    check_directions(directions, n)?;
     let nc = channels.len();
     let w_max = channels.iter().map(|c| c.weight).fold(0.0f32, f32::max);
     let columns: Vec<Vec<f32>> = channels
@@ -153,15 +173,18 @@ pub fn tv(
         .map(|ch| column_sums(ch.projector))
         .collect::<Result<_>>()?;
     let scale = balance(&columns, w_max);
-    let sigma_q = 1.0 / (2.0 * scale * w_max);
+    let bound = directions.map_or(1.0, Directions::bound);
+    let sigma_q = 1.0 / (2.0 * scale * w_max * bound);
     // R is positively homogeneous: λ R(y) at y = s w ∇x has its dual ball at radius λ / s.
     let radius = opts.weight as f32 / scale;
     let mut state: Vec<Primal> = channels
         .iter()
         .zip(columns)
-        .map(|(ch, cols)| Primal::new(ch, cols, scale * ch.weight, opts.weighting))
+        .map(|(ch, cols)| Primal::new(ch, cols, scale * ch.weight * bound, opts.weighting))
         .collect::<Result<_>>()?;
     let mut q = vec![0.0f32; 3 * nc * n];
+    // `P q` where a guide projects the gradients (`∇ᵀ P q` is the adjoint's input).
+    let mut pq = directions.map(|_| vec![0.0f32; 3 * nc * n]);
     for k in 0..opts.iterations {
         // Data duals.
         for (ch, s) in channels.iter().zip(state.iter_mut()) {
@@ -187,18 +210,28 @@ pub fn tv(
         let xbars: Vec<&[f32]> = state.iter().map(|s| &s.xbar[..]).collect();
         q.par_chunks_mut(3 * nc).enumerate().for_each(|(i, group)| {
             for (c, (x, ch)) in xbars.iter().zip(channels).enumerate() {
-                let g = grad.at(x, i);
+                let g = guided(directions, i, grad.at(x, i));
                 for d in 0..3 {
                     group[3 * c + d] += sigma_q * scale * ch.weight * g[d];
                 }
             }
             project(group, opts.coupling, radius);
         });
+        if let (Some(pq), Some(dir)) = (pq.as_mut(), directions) {
+            pq.par_chunks_mut(3 * nc)
+                .zip(q.par_chunks(3 * nc))
+                .enumerate()
+                .for_each(|(i, (out, group))| {
+                    for (o, g) in out.chunks_mut(3).zip(group.chunks(3)) {
+                        o.copy_from_slice(&dir.project(i, [g[0], g[1], g[2]]));
+                    }
+                });
+        }
         // Primal steps.
         for (c, (ch, s)) in channels.iter().zip(state.iter_mut()).enumerate() {
             let atp = ch.projector.adjoint(s.p.view())?;
             let atp = atp.as_slice().expect("standard layout");
-            let (q, w, nonneg) = (&q, scale * ch.weight, opts.nonneg);
+            let (q, w, nonneg) = (pq.as_ref().unwrap_or(&q), scale * ch.weight, opts.nonneg);
             s.x.par_iter_mut()
                 .zip(s.xbar.par_iter_mut())
                 .zip(s.tau.par_iter())
@@ -227,8 +260,19 @@ pub fn objective(
     volumes: &[Array3<f32>],
     opts: &TvOptions,
 ) -> Result<f64> {
+    objective_guided(channels, volumes, opts, None)
+}
+
+/// [`objective`] of [`tv_guided`]: `∇` replaced by `P∇` where `directions` are given.
+pub fn objective_guided(
+    channels: &[ChannelData],
+    volumes: &[Array3<f32>],
+    opts: &TvOptions,
+    directions: Option<&Directions>,
+) -> Result<f64> {
     let shape = check(channels)?;
     let grad = Gradient::new(shape);
+    check_directions(directions, grad.voxels())?;
     let mut data = 0.0f64;
     for (ch, x) in channels.iter().zip(volumes) {
         let r = ch.projector.forward(x.view())?;
@@ -251,7 +295,7 @@ pub fn objective(
             || vec![0.0f32; 3 * nc],
             |group, i| {
                 for (c, (x, ch)) in slices.iter().zip(channels).enumerate() {
-                    let g = grad.at(x, i);
+                    let g = guided(directions, i, grad.at(x, i));
                     for d in 0..3 {
                         group[3 * c + d] = ch.weight * g[d];
                     }
@@ -343,6 +387,29 @@ fn balance(columns: &[Vec<f32>], w_max: f32) -> f32 {
         return 1.0;
     }
     ((sum / count as f64) / (6.0 * w_max as f64)).max(1e-6) as f32
+}
+
+/// A gradient at voxel `i`, projected where a guide is given.
+#[inline]
+fn guided(directions: Option<&Directions>, i: usize, g: [f32; 3]) -> [f32; 3] {
+    match directions {
+        Some(d) => d.project(i, g),
+        None => g,
+    }
+}
+
+/// The guide's grid must be the volumes'.
+fn check_directions(directions: Option<&Directions>, voxels: usize) -> Result<()> {
+    match directions {
+        Some(d) if d.voxels() != voxels => Err(Error::invalid(
+            "tv.guide",
+            format!(
+                "the guide has {} voxels, the volume grid {voxels}",
+                d.voxels()
+            ),
+        )),
+        _ => Ok(()),
+    }
 }
 
 fn view(x: &[f32], shape: [usize; 3]) -> ArrayView3<'_, f32> {

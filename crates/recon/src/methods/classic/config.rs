@@ -96,6 +96,23 @@ pub struct TvConfig {
     /// The data term's ray weights: `none` (least squares, default) or `counts` (statistical
     /// weights ∝ e^{−b}, for photon-limited data).
     pub weighting: Weighting,
+    /// Directional TV (YAML `tv.guide: {eta, weight}`): every channel's gradient projected off
+    /// the edges of a guide image, the TV reconstruction of the channels' mean sinogram (Cueva
+    /// et al.'s side information from the summed sinograms; `algorithms::guide`). Absent
+    /// (default): plain TV. Left out of a resolved config when absent.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub guide: Option<Guide>,
+}
+
+/// Directional TV's guide (YAML `tv.guide`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Guide {
+    /// Edge parameter η as a fraction of the guide's largest gradient (Cueva et al.: 0.01).
+    pub eta: f64,
+    /// λ (mm) of the guide's own TV reconstruction from the channels' mean sinogram (channel
+    /// TV, the run's iterations and start).
+    pub weight: f64,
 }
 
 impl TvConfig {
@@ -109,6 +126,7 @@ impl Default for TvConfig {
             weight: 1.0,
             coupling: Coupling::default(),
             weighting: Weighting::default(),
+            guide: None,
         }
     }
 }
@@ -176,6 +194,23 @@ impl ClassicConfig {
                 "start",
                 "`fdk` is a start of `method: tv` only",
             ));
+        }
+        if let Some(g) = &self.tv.guide {
+            if !(g.eta.is_finite() && g.eta > 0.0) {
+                return Err(Error::invalid(
+                    "tv.guide.eta",
+                    format!("must be finite and > 0, got {}", g.eta),
+                ));
+            }
+            if !(g.weight.is_finite() && g.weight >= 0.0) {
+                return Err(Error::invalid(
+                    "tv.guide.weight",
+                    format!("must be finite and ≥ 0, got {}", g.weight),
+                ));
+            }
+            if self.method != ClassicMethod::Tv {
+                return Err(Error::invalid("tv.guide", "a setting of `method: tv` only"));
+            }
         }
         self.sart_options().validate()?;
         self.tv_options().validate()

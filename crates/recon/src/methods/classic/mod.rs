@@ -11,7 +11,9 @@ pub(crate) mod run;
 
 pub use config::{ClassicConfig, ClassicMethod};
 
-use crate::algorithms::{ChannelData, cgls, fdk, sart, tv};
+use crate::algorithms::{
+    ChannelData, Coupling, Directions, TvOptions, cgls, fdk, sart, tv, tv_guided,
+};
 use crate::{Error, Result};
 use ndarray::{Array3, ArrayView3, Axis};
 use prism_domain::geometry::Geometry;
@@ -49,6 +51,13 @@ pub fn reconstruct_channel(
             progress,
         ),
         ClassicMethod::Tv => {
+            if config.tv.guide.is_some() {
+                return Err(Error::invalid(
+                    "tv.guide",
+                    "directional TV is guided by several channels' mean; one channel alone has \
+                     no side information",
+                ));
+            }
             let a = Joseph::new(&sub)?;
             let start = tv_start(config, &sub, p.view())?;
             let one = ChannelData {
@@ -67,6 +76,8 @@ pub fn reconstruct_channel(
 /// training views) with `method: tv`, the channels coupled by the regulariser. A channel's
 /// regulariser weight is the inverse of its gain `gains[c]` (its mean training line integral
 /// over the channels' mean, [`channel_ratios`]), so channels of different contrast count alike.
+/// With `tv.guide`, the guide is reconstructed first (its iterations reported before the
+/// channels': `progress` counts both) and the channels' TV is directional.
 ///
 /// [`channel_ratios`]: prism_domain::scene::Scene::channel_ratios
 pub fn reconstruct_jointly(
@@ -106,7 +117,61 @@ pub fn reconstruct_jointly(
             start: s.as_ref().map(|v| v.view()),
         })
         .collect();
-    tv(&channels, &config.tv_options(), progress)
+    let directions = match &config.tv.guide {
+        Some(g) => {
+            let image = reconstruct_guide(config, g, views, &channels, progress)?;
+            Some(Directions::of(image.view(), g.eta))
+        }
+        None => None,
+    };
+    let done = if directions.is_some() {
+        config.resolved_iterations()
+    } else {
+        0
+    };
+    tv_guided(
+        &channels,
+        &config.tv_options(),
+        directions.as_ref(),
+        &mut |k| progress(done + k),
+    )
+}
+
+/// Directional TV's guide image: channel TV (weight `guide.weight`) of the channels' mean
+/// sinogram, which needs every channel measured at the same views.
+fn reconstruct_guide(
+    config: &ClassicConfig,
+    guide: &config::Guide,
+    views: &[Vec<usize>],
+    channels: &[ChannelData],
+    progress: &mut dyn FnMut(usize),
+) -> Result<Array3<f32>> {
+    if views.iter().any(|v| v != &views[0]) {
+        return Err(Error::invalid(
+            "tv.guide",
+            "the channels are measured at different views (an interleaved scan): the guide is \
+             reconstructed from their mean sinogram, which needs common views",
+        ));
+    }
+    let mut mean = channels[0].projections.to_owned();
+    for ch in &channels[1..] {
+        mean += &ch.projections;
+    }
+    mean /= channels.len() as f32;
+    let first = &channels[0];
+    let start = tv_start(config, first.projector.geometry(), mean.view())?;
+    let one = ChannelData {
+        projector: first.projector,
+        projections: mean.view(),
+        weight: 1.0,
+        start: start.as_ref().map(|v| v.view()),
+    };
+    let options = TvOptions {
+        weight: guide.weight,
+        coupling: Coupling::Channel,
+        ..config.tv_options()
+    };
+    Ok(tv(&[one], &options, progress)?.remove(0))
 }
 
 /// TV's starting volume of one channel (`start: fdk`: its FDK from `projections` at `geometry`'s

@@ -23,9 +23,18 @@ pub(crate) fn run(
     let start = Instant::now();
     let volumes = if config.method == ClassicMethod::Tv {
         let labels: Vec<&str> = scene.channels.iter().map(|c| c.label.as_str()).collect();
+        // With a guide, its reconstruction runs first, as many iterations again.
+        let (kind, steps) = match config.tv.guide {
+            Some(_) => ("directional ", 2 * iters),
+            None => ("", iters),
+        };
         observer.phase(
-            &format!("tv ({}) {}", config.tv.coupling.name(), labels.join(", ")),
-            iters as u64,
+            &format!(
+                "tv ({kind}{}) {}",
+                config.tv.coupling.name(),
+                labels.join(", ")
+            ),
+            steps as u64,
         );
         let projections: Vec<_> = (0..scene.channels.len())
             .map(|c| scene.channel_projections(c))
