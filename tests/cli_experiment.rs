@@ -339,7 +339,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     assert!(
         t.contains("3 scene cells:")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("36 run cells:")
+            && t.contains("38 run cells:")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-tv512x10  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/dtv-0.15-i1000  to run\n")
