@@ -2,6 +2,7 @@
 directories, reports progress and stops on Ctrl-C."""
 
 import _thread
+import signal
 import threading
 
 import numpy as np
@@ -119,6 +120,9 @@ def test_progress_reaches_the_callback(scene):
 
 def test_ctrl_c_stops_a_training_run(scene, tmp_path):
     g, p, _ = scene
+    # A shell's background job starts with SIGINT ignored, and interrupt_main then does nothing (the run
+    # would go on for all its iterations): handle SIGINT as an interactive Python does.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     timer = threading.Timer(1.0, _thread.interrupt_main)
     timer.start()
     try:
@@ -127,6 +131,7 @@ def test_ctrl_c_stops_a_training_run(scene, tmp_path):
                               out=tmp_path / "long")
     finally:
         timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     # The state is saved for --resume, as the command line's SIGINT does; nothing is published.
     assert (tmp_path / "long.resume.safetensors").is_file()
     assert not (tmp_path / "long").exists()
