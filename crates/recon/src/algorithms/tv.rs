@@ -208,7 +208,7 @@ pub fn tv_guided(
         }
         // Gradient duals, projected group by group.
         let xbars: Vec<&[f32]> = state.iter().map(|s| &s.xbar[..]).collect();
-        q.par_chunks_mut(3 * nc).enumerate().for_each(|(i, group)| {
+        let dual = |i: usize, group: &mut [f32]| {
             for (c, (x, ch)) in xbars.iter().zip(channels).enumerate() {
                 let g = guided(directions, i, grad.at(x, i));
                 for d in 0..3 {
@@ -216,16 +216,23 @@ pub fn tv_guided(
                 }
             }
             project(group, opts.coupling, radius);
-        });
-        if let (Some(pq), Some(dir)) = (pq.as_mut(), directions) {
-            pq.par_chunks_mut(3 * nc)
-                .zip(q.par_chunks(3 * nc))
+        };
+        match (pq.as_mut(), directions) {
+            // With a guide, `P q` of the voxel in the same pass.
+            (Some(pq), Some(dir)) => q
+                .par_chunks_mut(3 * nc)
+                .zip(pq.par_chunks_mut(3 * nc))
                 .enumerate()
-                .for_each(|(i, (out, group))| {
+                .for_each(|(i, (group, out))| {
+                    dual(i, group);
                     for (o, g) in out.chunks_mut(3).zip(group.chunks(3)) {
                         o.copy_from_slice(&dir.project(i, [g[0], g[1], g[2]]));
                     }
-                });
+                }),
+            _ => q
+                .par_chunks_mut(3 * nc)
+                .enumerate()
+                .for_each(|(i, group)| dual(i, group)),
         }
         // Primal steps.
         for (c, (ch, s)) in channels.iter().zip(state.iter_mut()).enumerate() {

@@ -147,7 +147,7 @@ impl<'a> Trainer<'a> {
         let tv_weights = stage.tv_weights.iter().any(|&w| w != 1.0).then(|| {
             let w: Vec<f32> = stage.tv_weights.iter().map(|&w| w as f32).collect();
             let m = w.len();
-            Tensor::from_data(TensorData::new(w, [m, 1, 1, 1]), &model.device().autodiff())
+            Tensor::from_data(TensorData::new(w, [m, 1, 1, 1]), &device.clone().autodiff())
         });
         let grid = stage.world.volume(stage.grid);
         let stats = stage
