@@ -2,7 +2,8 @@
 //! (with Parker weights for short scans) on the voxel-driven backprojector, the SART family
 //! (SART / OS-SART / SIRT) and CGLS on the Joseph projector and its exact adjoint
 //! (`prism_domain::projector`), total-variation regularised least squares over one or several
-//! coupled channels (PDHG, [`tv`]) with its gradient operator, and ramp filters. The classic methods
+//! coupled channels (PDHG, [`tv`]) with its gradient operator, directional TV's guide ([`guide`]) and
+//! total nuclear variation's 3 × 3 linear algebra (`nuclear`), and ramp filters. The classic methods
 //! ([`crate::methods::classic`]) run them per channel; FDK also initialises the Gaussians and
 //! NAF ([`crate::init`]).
 //!
@@ -15,6 +16,7 @@ pub mod fdk;
 pub mod filter;
 pub mod gradient;
 pub mod guide;
+mod nuclear;
 pub mod sart;
 pub mod tv;
 
