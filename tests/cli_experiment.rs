@@ -305,8 +305,9 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/kvp-v52-interleaved-s0  (64³, 52 views, 4 channels)")
             && t.contains("scenes/head-v39-shipped-s0  (64³, 39 views, 3 channels)")
             && t.contains("scenes/pcct-v13-i0-3e3-s0  (64³, 13 views, 4 channels)")
-            && t.contains("84 run cells:")
+            && t.contains("100 run cells:")
             && t.contains("runs/head-v39-interleaved-s0/r2gs  to run\n")
+            && t.contains("runs/head-v39-shipped-s0/4dsg-r2rates-res  to run\n")
             && t.contains("runs/pcct-v13-i0-1e4-s0/tnv  to run\n")
             && t.contains("runs/pcct-v13-i0-3e3-s0/4dsg-counts  to run\n")
             && t.contains("runs/kvp-v52-shipped-s0/4dsg-basis-r2rates  to run\n"),
@@ -339,8 +340,9 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     assert!(
         t.contains("3 scene cells:")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("38 run cells:")
+            && t.contains("39 run cells:")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-tv512x10  to run\n")
+            && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w-r0  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/dtv-0.15-i1000  to run\n")
             && t.contains("runs/tooth-v45-shipped-s0/r2gs  to run\n"),

@@ -117,6 +117,15 @@ impl GaussianModel {
         self.densities = AdamParam::new(raw);
     }
 
+    /// Append `n` density columns of zeros with zero Adam moments; the existing columns keep
+    /// their values and moments, and the group its step count.
+    pub fn append_density_columns(&mut self, n: usize) {
+        let (m1, m2, steps) = self.densities.state();
+        let zeros = Tensor::zeros([self.len(), n], &self.device());
+        let cat = |t: &Tensor<2>| Tensor::cat(vec![t.clone(), zeros.clone()], 1);
+        self.densities = AdamParam::with_state(cat(&self.densities.value), cat(m1), cat(m2), steps);
+    }
+
     /// Activated Gaussians. With `learn`, the listed groups become autodiff leaves that require
     /// gradients (on the autodiff form of the model's device); without, plain tensors.
     pub fn activate(&self, learn: Option<Learnable>) -> Activated {

@@ -296,6 +296,16 @@ pub fn footprint(config: &MethodConfig, scene: &Scene) -> Footprint {
                 bytes(k, 12 * 11 * finished),
             );
         }
+        if let MethodConfig::FourDsg(c) = config
+            && c.spectral.stage2.residual.is_some()
+        {
+            // Value, gradient and two Adam moments of every residual, and the curve plus it.
+            f.add_in(
+                TRAINING,
+                format!("channel residuals ({k} Gaussians × {channels} channels)"),
+                bytes(k, 20 * channels),
+            );
+        }
         if let MethodConfig::FourDsg(c) = config {
             // Upper bounds (both scale as the network does; exact at the default size is not
             // needed, a width that cannot fit must not pass): 16·width² parameters per block

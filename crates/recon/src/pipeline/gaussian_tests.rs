@@ -11,6 +11,7 @@ use crate::gaussians::io::{ModelInfo, load_model, save_model, write_ply};
 use crate::gaussians::train::densify::densify_and_prune;
 use crate::gaussians::{GaussianModel, GeometryConfig, Learnable, ProjectionConfig, World};
 use crate::init::from_fdk;
+use crate::methods::fourdsg::stage2::config::ResidualConfig;
 use crate::methods::fourdsg::{FourDsgConfig, FourDsgMethod, query};
 use crate::methods::r2gs::R2gsConfig;
 use crate::{Method, MethodConfig, Result};
@@ -76,6 +77,18 @@ pub(crate) fn tiny(method: FourDsgMethod) -> FourDsgConfig {
     let mut c = FourDsgConfig::new(method);
     c.geometry = tiny_geometry();
     c.spectral.density_iterations = 20;
+    c
+}
+
+/// A tiny 4D-SG run without densification: `geometry` stage-1 and `spectral` stage-2
+/// iterations, a one-block curve model of width 8.
+pub(crate) fn tiny_spectral(geometry: usize, spectral: usize) -> FourDsgConfig {
+    let mut c = tiny(FourDsgMethod::Full);
+    c.geometry.iterations = geometry;
+    c.geometry.densify = None;
+    c.spectral.stage2.iterations = spectral;
+    c.spectral.stage2.curve_model.width = 8;
+    c.spectral.stage2.curve_model.depth = 1;
     c
 }
 
@@ -566,12 +579,7 @@ pub(super) fn three_channel_scene() -> prism_domain::scene::Scene {
 #[test]
 fn stage_two_runs_on_the_ndarray_backend() {
     let scene = three_channel_scene();
-    let mut cfg = tiny(FourDsgMethod::Full);
-    cfg.geometry.iterations = 8;
-    cfg.geometry.densify = None;
-    cfg.spectral.stage2.iterations = 6;
-    cfg.spectral.stage2.curve_model.width = 8;
-    cfg.spectral.stage2.curve_model.depth = 1;
+    let cfg = tiny_spectral(8, 6);
     let dir = tempfile::tempdir().unwrap();
     #[allow(deprecated)] // burn-ndarray goes in Burn 0.23; until then our ops serve it too
     let dev = burn::tensor::Device::ndarray();
@@ -634,6 +642,7 @@ fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
         .loss
         .tv_channel_weight
         .insert(scene.channels[2].label.clone(), 3.0);
+    other_stage2.spectral.stage2.residual = Some(ResidualConfig { weight: 0.1 });
     let c = tempfile::tempdir().unwrap();
     run_from(&other_stage2, &scene, c.path(), &dev, Some(&ckpt)).unwrap();
     let mut other_init = cfg.clone();
@@ -674,6 +683,44 @@ fn a_4dsg_run_continues_from_its_stage1_checkpoint_exactly() {
         .unwrap()
         .to_string();
     assert!(e.contains("r2gs"), "{e}");
+}
+
+/// Channel residuals start at zero: the first spectral step with them moves the geometry
+/// (positions, scales, rotations) exactly as the step without them, since at r = 0 the curve, the
+/// loss and its gradients are the same; the residuals themselves take a step, so the channels'
+/// saved raw densities differ.
+#[test]
+fn zero_channel_residuals_leave_the_first_spectral_step_as_it_is() {
+    let scene = three_channel_scene();
+    let dev = cpu_device();
+    let cfg = tiny_spectral(10, 1);
+    let mut with = cfg.clone();
+    with.spectral.stage2.residual = Some(ResidualConfig { weight: 0.1 });
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    run_on(&cfg, &scene, a.path(), &dev).unwrap();
+    run_on(&with, &scene, b.path(), &dev).unwrap();
+    let load = |d: &Path| {
+        load_model(&RunDir::spectral_model(d).unwrap(), &dev)
+            .unwrap()
+            .model
+    };
+    let (ma, mb) = (load(a.path()), load(b.path()));
+    let host = |t: &burn::tensor::Tensor<2>| crate::device::host_values(t);
+    for (what, x, y) in [
+        ("means", &ma.means, &mb.means),
+        ("scales", &ma.scales, &mb.scales),
+        ("rotations", &ma.rotations, &mb.rotations),
+    ] {
+        assert!(host(&x.value) == host(&y.value), "{what} differ");
+    }
+    let (da, db) = (host(&ma.densities.value), host(&mb.densities.value));
+    assert_eq!(da.len(), db.len());
+    let moved = da.iter().zip(&db).filter(|(x, y)| x != y).count();
+    assert!(
+        moved > da.len() / 2,
+        "{moved} of {} raw densities moved",
+        da.len()
+    );
 }
 
 #[test]

@@ -2,7 +2,7 @@
 //! uninterrupted ones (`crate::gaussians::train::checkpoints`, `crate::methods::naf::resume`); divergence saves the last
 //! good state; mismatched resumes are refused.
 
-use super::gaussian_tests::{losses, three_channel_scene, tiny, tiny_r2gs};
+use super::gaussian_tests::{losses, three_channel_scene, tiny, tiny_r2gs, tiny_spectral};
 use super::run;
 use super::tests::scene;
 use crate::device::cpu_device;
@@ -173,6 +173,25 @@ fn a_4dsg_run_interrupted_in_both_stages_resumes_exactly() {
     interrupted(e, &ckpt, "geometry structural", 17);
     let e = run_stopped(&cfg, &scene, &b, &ckpt, true, ("gscnet all", 5)).unwrap_err();
     interrupted(e, &ckpt, "gscnet all", 5);
+    run_stopped(&cfg, &scene, &b, &ckpt, true, ("", 0)).unwrap();
+    assert_same_results(&a, &b);
+}
+
+/// 4D-SG with channel residuals (`stage2.residual`, density columns beside u⁽ᶜ⁾) stopped in the
+/// spectral stage and resumed: the uninterrupted run's results (the residuals and their Adam
+/// moments are part of the model's state).
+#[test]
+fn a_4dsg_run_with_channel_residuals_resumes_exactly() {
+    use crate::methods::fourdsg::stage2::config::ResidualConfig;
+    let scene = three_channel_scene();
+    let mut cfg = tiny_spectral(10, 12);
+    cfg.spectral.stage2.residual = Some(ResidualConfig { weight: 0.1 });
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    let ckpt = tmp.path().join("b.ckpt");
+    run_stopped(&cfg, &scene, &a, &tmp.path().join("a.ckpt"), false, ("", 0)).unwrap();
+    let e = run_stopped(&cfg, &scene, &b, &ckpt, false, ("gscnet all", 7)).unwrap_err();
+    interrupted(e, &ckpt, "gscnet all", 7);
     run_stopped(&cfg, &scene, &b, &ckpt, true, ("", 0)).unwrap();
     assert_same_results(&a, &b);
 }

@@ -9,18 +9,27 @@ use crate::record::resume::NetState;
 use burn::tensor::{Gradients, Tensor};
 use std::path::Path;
 
-/// A network trained with the model: it turns the model's one raw density column u `[K, 1]`
-/// into every supervised channel's raw density u + Δu `[K, M]` (rendered as softplus), and has
-/// its own optimiser and learning-rate schedule.
+/// A network trained with the model: it turns the model's common raw density u⁽ᶜ⁾ (density
+/// column 0) into every supervised channel's raw density u⁽ᶜ⁾ + Δu `[K, M]` (rendered as
+/// softplus), and has its own optimiser and learning-rate schedule. Further density columns, if
+/// it reads any ([`DensityNet::columns`]), are per-Gaussian parameters of its own, trained at the
+/// density's rate (4D-SG's channel residuals).
 pub trait DensityNet: 'static {
     /// The channels M it predicts.
     fn channels(&self) -> usize;
 
-    /// Δu `[K, M]` from u `[K, 1]`, on the autodiff device (gradients flow to u and the net).
+    /// The model's density columns it reads: 1 (u⁽ᶜ⁾), or more with per-Gaussian parameters.
+    fn columns(&self) -> usize {
+        1
+    }
+
+    /// Δu `[K, M]` from the density columns u `[K, columns]`, on the autodiff device (gradients
+    /// flow to u and the net).
     fn offsets(&self, u: Tensor<2>) -> Result<Tensor<2>>;
 
-    /// Its regulariser on `offsets` and that term's weight, or None when it has none (weight 0).
-    fn regulariser(&self, offsets: Tensor<2>) -> Result<Option<(Tensor<1>, f64)>>;
+    /// Its regulariser on the density columns `u` and their `offsets`, and that term's weight,
+    /// or None when it has none (weight 0).
+    fn regulariser(&self, u: Tensor<2>, offsets: Tensor<2>) -> Result<Option<(Tensor<1>, f64)>>;
 
     /// The learning-rate schedule of the network.
     fn lr(&self) -> LogLinear;
@@ -39,7 +48,15 @@ pub trait DensityNet: 'static {
     fn raw_densities(&self, model: &GaussianModel) -> Result<Tensor<2>> {
         let u = model.densities.value.clone();
         let du = self.offsets(u.clone().autodiff())?.inner();
-        Ok(u + du)
+        Ok(common_density(u) + du)
+    }
+}
+
+/// The common raw density u⁽ᶜ⁾ `[K, 1]`: column 0 of a density network's columns `u`.
+pub fn common_density(u: Tensor<2>) -> Tensor<2> {
+    match u.dims()[1] {
+        1 => u,
+        _ => u.narrow(1, 0, 1),
     }
 }
 

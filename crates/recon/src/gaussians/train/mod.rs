@@ -23,7 +23,7 @@ pub use checkpoints::Checkpoints;
 pub use data::{Supervision, View};
 pub use densify::DensifyCounts;
 pub use evaluator::Evaluator;
-pub use head::{ChannelMix, DensityNet};
+pub use head::{ChannelMix, DensityNet, common_density};
 pub use settings::{ChannelMap, Stage};
 pub use trainer::{DensifyStep, StepPlan, StepStats, Trainer, TrainerState};
 

@@ -16,7 +16,7 @@ use super::Timing;
 use super::data::Supervision;
 use super::densify::{DensifyCounts, densify_and_prune};
 use super::draw::draw_views;
-use super::head::DensityNet;
+use super::head::{DensityNet, common_density};
 use super::loss::{
     SsimWindow, count_weights, directional_total_variation, l1, total_variation, weighted_l1,
 };
@@ -121,7 +121,7 @@ impl<'a> Trainer<'a> {
             return Err(Error::invalid("views", "no training view to fit"));
         };
         let (columns, needs) = match (&curve, stage.map.columns()) {
-            (Some(c), _) => (c.channels(), 1),
+            (Some(c), _) => (c.channels(), c.columns()),
             (None, Some(map)) => map,
             (None, None) => (model.channels(), model.channels()),
         };
@@ -278,8 +278,8 @@ impl<'a> Trainer<'a> {
             Some(c) => {
                 let u = act.leaves[3].clone();
                 let du = c.offsets(u.clone())?;
-                act.gaussians.densities = softplus(u + du.clone());
-                Some(du)
+                act.gaussians.densities = softplus(common_density(u.clone()) + du.clone());
+                Some((u, du))
             }
             None => None,
         };
@@ -344,7 +344,7 @@ impl<'a> Trainer<'a> {
             None
         };
         let l_curve = match (&self.curve, delta_u) {
-            (Some(c), Some(du)) => c.regulariser(du)?.map(|(l, weight)| {
+            (Some(c), Some((u, du))) => c.regulariser(u, du)?.map(|(l, weight)| {
                 total = total.clone() + l.clone() * weight;
                 l
             }),

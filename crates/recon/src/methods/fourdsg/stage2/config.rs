@@ -72,6 +72,22 @@ pub struct Stage2Config {
     /// the curve model.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub basis: Option<BasisConfig>,
+    /// A free raw-density residual per Gaussian and channel added to the curve model's
+    /// prediction, held near zero by an L2 penalty; absent: none (the paper's model, every
+    /// channel a function of the Gaussian's common density).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub residual: Option<ResidualConfig>,
+}
+
+/// `stage2.residual`: channel residuals r `[K, M]` on top of the curve model,
+/// `u⁽ᵐ⁾ = u⁽ᶜ⁾ + Δu⁽ᵐ⁾ + r⁽ᵐ⁾`, penalised by `weight · mean(r²)`. They start at zero and
+/// learn at the density's rate. A large weight gives the paper's model back; weight 0 frees
+/// every channel's density on the shared geometry.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ResidualConfig {
+    /// Weight of the residuals' mean square (raw-density units, ≥ 0).
+    pub weight: f64,
 }
 
 impl Default for Stage2Config {
@@ -87,6 +103,7 @@ impl Default for Stage2Config {
             freeze: Freeze::default(),
             condition_on_stage1: true,
             basis: None,
+            residual: None,
         }
     }
 }
@@ -105,6 +122,26 @@ impl Stage2Config {
                 "stage2.lambda_curve",
                 format!("must be finite and ≥ 0, got {}", self.lambda_curve),
             ));
+        }
+        if let Some(r) = &self.residual {
+            if !(r.weight.is_finite() && r.weight >= 0.0) {
+                return Err(Error::invalid(
+                    "stage2.residual.weight",
+                    format!("must be finite and ≥ 0, got {}", r.weight),
+                ));
+            }
+            let clash = if self.basis.is_some() {
+                Some(
+                    "the basis head forms its channels from materials; it has no curve to add a residual to",
+                )
+            } else if self.freeze.density {
+                Some("the residuals learn with the densities, which stage2.freeze.density fixes")
+            } else {
+                None
+            };
+            if let Some(why) = clash {
+                return Err(Error::invalid("stage2.residual", why));
+            }
         }
         if let Some(b) = &self.basis {
             b.validate("stage2")?;
@@ -155,5 +192,32 @@ impl BasisConfig {
             ));
         }
         Ok(basis)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `stage2.residual` reads from YAML, and a negative weight, the basis head or frozen
+    /// densities are refused naming the field.
+    #[test]
+    fn channel_residual_settings_are_checked() {
+        let c: Stage2Config = serde_yaml_ng::from_str("residual: {weight: 0.1}").unwrap();
+        assert_eq!(c.residual, Some(ResidualConfig { weight: 0.1 }));
+        c.validate().unwrap();
+        let bad = |c: Stage2Config, field: &str, why: &str| {
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains(field) && e.contains(why), "{e}");
+        };
+        let mut neg = c.clone();
+        neg.residual = Some(ResidualConfig { weight: -1.0 });
+        bad(neg, "stage2.residual.weight", "≥ 0");
+        let mut basis = c.clone();
+        basis.basis = Some(BasisConfig::default());
+        bad(basis, "stage2.residual", "basis head");
+        let mut frozen = c;
+        frozen.freeze.density = true;
+        bad(frozen, "stage2.residual", "freeze.density");
     }
 }

@@ -9,6 +9,11 @@
 //! baseline started from the channels' mean attenuation ratios, so stage 2 does not start with
 //! every channel at the channel-mean density.
 //!
+//! With `stage2.residual` each Gaussian also carries a free raw-density residual per channel
+//! (density columns 1..=M, started at zero), added to the curve and held near zero by an L2
+//! penalty: a channel may then depart from the one function of u⁽ᶜ⁾ the network gives every
+//! Gaussian, where its own projections say so.
+//!
 //! With `stage2.basis` the spectral head is the basis-material head instead ([`crate::methods::fourdsg::heads::basis`]): the
 //! Gaussians carry one density per basis material and the channels are formed by the physics.
 
@@ -151,12 +156,17 @@ pub fn train_spectral(
                 let (lo, mid, hi) = (quantile(&u, 0.1), quantile(&u, 0.5), quantile(&u, 0.9));
                 net.set_density_conditioning(mid, ((hi - lo) / 2.0).max(0.1))?;
             }
+            let residual = s2.residual.as_ref().map(|r| r.weight);
+            if residual.is_some() {
+                model.append_density_columns(m);
+            }
             let mut fit = CurveFit {
                 net,
                 optim: AdamConfig::new().init(),
                 tau: grid.to_tensor(&ad),
                 lambda_curve: s2.lambda_curve,
                 lr: s2.lr_network,
+                residual,
             };
             let stage = spectral_stage(
                 &config.geometry,
