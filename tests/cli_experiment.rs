@@ -323,8 +323,8 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     );
     // The real-data suite: the bird scan imported (fan beam, one 512 × 512 slice), cut to 60 views
     // on Cueva et al.'s geometry and to 30, 60 and 120 on the scan's own, every method on each;
-    // its studies: the sweeps on the dTV protocol and the tooth (parallel beam, two rows) at 23
-    // and 45 views.
+    // its studies: the sweeps on the dTV protocol (one study at a second seed, its own scene
+    // cell) and the tooth (parallel beam, two rows) at 23 and 45 views.
     let t = dry_run(&repo.join("configs/suites/real.yaml"), &out);
     assert!(
         t.contains("4 scene cells:")
@@ -338,9 +338,10 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     );
     let t = dry_run(&repo.join("configs/suites/real-studies.yaml"), &out);
     assert!(
-        t.contains("3 scene cells:")
+        t.contains("4 scene cells:")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("39 run cells:")
+            && t.contains("41 run cells:")
+            && t.contains("runs/bird-dtv-v60-shipped-s1/4dsg-dtv512x20-60k-w-r0  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-tv512x10  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w-r0  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w  to run\n")
