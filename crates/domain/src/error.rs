@@ -40,6 +40,19 @@ pub fn ensure_positive(field: impl AsRef<str>, v: f64) -> Result<()> {
     }
 }
 
+/// `Ok` when `v` is finite and ≥ 0 (a weight that may switch a term off), else an
+/// [`Error::Invalid`] naming `field`.
+pub fn ensure_non_negative(field: impl AsRef<str>, v: f64) -> Result<()> {
+    if v.is_finite() && v >= 0.0 {
+        Ok(())
+    } else {
+        Err(Error::invalid(
+            field.as_ref(),
+            format!("must be finite and ≥ 0 (got {v})"),
+        ))
+    }
+}
+
 /// `Ok` when `v` is finite, else an [`Error::Invalid`] naming `field`.
 pub fn ensure_finite(field: impl AsRef<str>, v: f64) -> Result<()> {
     if v.is_finite() {

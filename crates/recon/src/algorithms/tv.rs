@@ -124,12 +124,7 @@ impl TvOptions {
         if self.iterations == 0 {
             return Err(Error::invalid("iterations", "must be at least 1"));
         }
-        if !(self.weight.is_finite() && self.weight >= 0.0) {
-            return Err(Error::invalid(
-                "tv.weight",
-                format!("must be finite and ≥ 0 (got {})", self.weight),
-            ));
-        }
+        prism_domain::error::ensure_non_negative("tv.weight", self.weight)?;
         Ok(())
     }
 }

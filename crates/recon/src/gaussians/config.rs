@@ -345,28 +345,13 @@ impl LossConfig {
             ("loss.lambda_dssim", self.lambda_dssim),
             ("loss.lambda_tv", self.lambda_tv),
         ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(Error::invalid(
-                    f,
-                    format!("must be finite and ≥ 0, got {v}"),
-                ));
-            }
+            prism_domain::error::ensure_non_negative(f, v)?;
         }
-        if let Some(g) = &self.tv_guide
-            && !(g.eta.is_finite() && g.eta > 0.0)
-        {
-            return Err(Error::invalid(
-                "loss.tv_guide.eta",
-                format!("must be finite and > 0, got {}", g.eta),
-            ));
+        if let Some(g) = &self.tv_guide {
+            prism_domain::error::ensure_positive("loss.tv_guide.eta", g.eta)?;
         }
         for (label, &w) in &self.tv_channel_weight {
-            if !(w.is_finite() && w >= 0.0) {
-                return Err(Error::invalid(
-                    format!("loss.tv_channel_weight.{label}"),
-                    format!("must be finite and ≥ 0, got {w}"),
-                ));
-            }
+            prism_domain::error::ensure_non_negative(format!("loss.tv_channel_weight.{label}"), w)?;
         }
         if self.lambda_tv > 0.0 && self.tv_patch < 2 {
             return Err(Error::invalid("loss.tv_patch", "must be at least 2 voxels"));

@@ -196,18 +196,8 @@ impl ClassicConfig {
             ));
         }
         if let Some(g) = &self.tv.guide {
-            if !(g.eta.is_finite() && g.eta > 0.0) {
-                return Err(Error::invalid(
-                    "tv.guide.eta",
-                    format!("must be finite and > 0, got {}", g.eta),
-                ));
-            }
-            if !(g.weight.is_finite() && g.weight >= 0.0) {
-                return Err(Error::invalid(
-                    "tv.guide.weight",
-                    format!("must be finite and ≥ 0, got {}", g.weight),
-                ));
-            }
+            prism_domain::error::ensure_positive("tv.guide.eta", g.eta)?;
+            prism_domain::error::ensure_non_negative("tv.guide.weight", g.weight)?;
             if self.method != ClassicMethod::Tv {
                 return Err(Error::invalid("tv.guide", "a setting of `method: tv` only"));
             }

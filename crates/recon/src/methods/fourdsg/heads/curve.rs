@@ -31,9 +31,10 @@ pub struct CurveFit {
 }
 
 impl CurveFit {
-    /// The channel residuals r `[K, M]` of the density columns `u` (None without them).
-    fn residuals(&self, u: &Tensor<2>) -> Result<Option<Tensor<2>>> {
-        let Some(_) = self.residual else {
+    /// The channel residuals r `[K, M]` of the density columns `u` and their weight (None
+    /// without them).
+    fn residuals(&self, u: &Tensor<2>) -> Result<Option<(Tensor<2>, f64)>> {
+        let Some(weight) = self.residual else {
             return Ok(None);
         };
         let m = self.channels();
@@ -44,7 +45,7 @@ impl CurveFit {
                 format!("{d} density columns, expected the common density and {m} residuals"),
             ));
         }
-        Ok(Some(u.clone().narrow(1, 1, m)))
+        Ok(Some((u.clone().narrow(1, 1, m), weight)))
     }
 }
 
@@ -67,7 +68,7 @@ impl DensityNet for CurveFit {
             .net
             .forward(common_density(u).reshape([k]), self.tau.clone())?;
         Ok(match r {
-            Some(r) => du + r,
+            Some((r, _)) => du + r,
             None => du,
         })
     }
@@ -81,16 +82,14 @@ impl DensityNet for CurveFit {
                 false => None,
             })
         };
-        match (self.residuals(&u)?, self.residual) {
-            (Some(r), Some(weight)) => {
-                let penalty = r.clone().powi_scalar(2).mean() * weight;
-                Ok(Some(match curve(offsets - r)? {
-                    Some(l) => (l * self.lambda_curve + penalty, 1.0),
-                    None => (penalty, 1.0),
-                }))
-            }
-            _ => Ok(curve(offsets)?.map(|l| (l, self.lambda_curve))),
-        }
+        let Some((r, weight)) = self.residuals(&u)? else {
+            return Ok(curve(offsets)?.map(|l| (l, self.lambda_curve)));
+        };
+        let penalty = r.clone().powi_scalar(2).mean() * weight;
+        Ok(Some(match curve(offsets - r)? {
+            Some(l) => (l * self.lambda_curve + penalty, 1.0),
+            None => (penalty, 1.0),
+        }))
     }
 
     fn lr(&self) -> LogLinear {

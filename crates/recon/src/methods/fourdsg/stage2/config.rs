@@ -5,6 +5,7 @@ use crate::gaussians::Learnable;
 use crate::gaussians::adam::LogLinear;
 use crate::{Error, Result};
 use prism_domain::decompose::Basis;
+use prism_domain::error::ensure_non_negative;
 use prism_domain::physics::Material;
 use prism_gscnet::CurveModelConfig;
 use serde::{Deserialize, Serialize};
@@ -117,19 +118,9 @@ impl Stage2Config {
         self.curve_model
             .validate()
             .map_err(|e| Error::invalid("stage2.curve_model", e.to_string()))?;
-        if !(self.lambda_curve.is_finite() && self.lambda_curve >= 0.0) {
-            return Err(Error::invalid(
-                "stage2.lambda_curve",
-                format!("must be finite and ≥ 0, got {}", self.lambda_curve),
-            ));
-        }
+        ensure_non_negative("stage2.lambda_curve", self.lambda_curve)?;
         if let Some(r) = &self.residual {
-            if !(r.weight.is_finite() && r.weight >= 0.0) {
-                return Err(Error::invalid(
-                    "stage2.residual.weight",
-                    format!("must be finite and ≥ 0, got {}", r.weight),
-                ));
-            }
+            ensure_non_negative("stage2.residual.weight", r.weight)?;
             let clash = if self.basis.is_some() {
                 Some(
                     "the basis head forms its channels from materials; it has no curve to add a residual to",
