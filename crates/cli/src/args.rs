@@ -45,7 +45,8 @@ pub struct EvalArgs {
     #[arg(long = "lpips-weights", value_name = "FILE")]
     pub lpips_weights: Option<PathBuf>,
     /// Score inside the object only: the mask's settings as YAML, e.g.
-    /// `--eval-roi '{threshold: 0.1, erode_mm: 1.0}'` (fields in docs/metrics.md; `{}` the defaults).
+    /// `--eval-roi '{threshold: 0.1, erode_mm: 1.0}'` (the object), `'{region: field_of_view}'` (the
+    /// voxels every view sees); fields in docs/metrics.md, `{}` the defaults.
     #[arg(long = "eval-roi", value_name = "YAML")]
     pub roi: Option<String>,
 }

@@ -473,6 +473,16 @@ mod tests {
                 "scenes.a.roi={erode_mm: -1}",
                 "scenes.a.roi.erode_mm",
             ),
+            (
+                SUITE,
+                "scenes.a.roi={region: field_of_view, smooth_mm: 2}",
+                "scenes.a.roi.smooth_mm",
+            ),
+            (
+                SUITE,
+                "evaluation.roi={region: everywhere}",
+                "evaluation.roi",
+            ),
         ] {
             let e = load(text, &[set]).unwrap_err().to_string();
             assert!(e.contains(needle) && e.contains("suite.yaml"), "{set}: {e}");

@@ -8,7 +8,7 @@ pub mod score_json;
 pub mod ssim;
 
 pub use psnr::psnr;
-pub use roi::{Roi, RoiSpec};
+pub use roi::{Region, Roi, RoiSpec};
 pub use ssim::{Border, Ssim3d, SsimParams, ssim_2d, ssim_3d, ssim_map, window_axes};
 
 use crate::{Error, Result};

@@ -1,7 +1,9 @@
 //! The region a volume is scored in: the object found in the references, not the air around it
-//! (nor, with an erosion, a sample tube's wall or the object's partial-volume outline).
+//! (nor, with an erosion, a sample tube's wall or the object's partial-volume outline); or the
+//! complete-data region, the voxels every view of the scan sees (`region: field_of_view`).
 //!
-//! The mask is made once per scene, per axial slice (constant z), from every channel's reference:
+//! The object mask (`region: object`, the default) is made once per scene, per axial slice
+//! (constant z), from every channel's reference:
 //! 1. each channel divided by its own maximum, then averaged over the channels (one mask for all);
 //! 2. smoothed in-plane by a Gaussian of σ = `smooth_mm` (none at 0; a noisy reference needs it);
 //! 3. thresholded at `threshold` × the smoothed mean's maximum over the volume;
@@ -9,19 +11,38 @@
 //!    (a tooth's pulp, the lungs of a chest);
 //! 5. eroded by a disc of radius `erode_mm`.
 //!
+//! The field-of-view mask is [`crate::projector::seen_by_every_view`] of the scene's geometry,
+//! eroded as step 5; `threshold` and `smooth_mm` do not apply to it.
+//!
 //! Lengths are in the scene's unit (mm; detector pixels for scenes imported in pixel units).
 //! Metrics restricted to the mask are in `prism_recon::evaluate::protocol` (`docs/metrics.md`).
 
 use crate::error::ensure_finite;
+use crate::geometry::Geometry;
 use crate::{Error, Result};
 use ndarray::{Array2, Array3, ArrayView2, ArrayView4, Axis};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 
-/// How the object mask is made (YAML `evaluation.roi`; every field optional).
+/// Which region is scored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Region {
+    /// The object found in the references (module docs, steps 1–5).
+    #[default]
+    Object,
+    /// The voxels every view of the scene sees: where the data determine the volume. Outside
+    /// it (a fan beam's grid corners on a full turn) each voxel is a limited-angle problem whose
+    /// values the regulariser and the solver decide as much as the scan.
+    FieldOfView,
+}
+
+/// How the mask is made (YAML `evaluation.roi`; every field optional).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RoiSpec {
+    /// The object (default) or the complete-data region.
+    pub region: Region,
     /// Fraction of the smoothed references' maximum above which a pixel is object, in (0, 1).
     pub threshold: f64,
     /// Gaussian σ of the in-plane smoothing before the threshold, mm (0: none).
@@ -33,6 +54,7 @@ pub struct RoiSpec {
 impl Default for RoiSpec {
     fn default() -> Self {
         RoiSpec {
+            region: Region::Object,
             threshold: 0.1,
             smooth_mm: 0.0,
             erode_mm: 0.0,
@@ -43,24 +65,43 @@ impl Default for RoiSpec {
 impl RoiSpec {
     /// How the mask is made, in words (`metrics.json`, reports).
     pub fn describe(&self) -> String {
+        let eroded = if self.erode_mm > 0.0 {
+            format!(", eroded by {} mm", self.erode_mm)
+        } else {
+            String::new()
+        };
+        if self.region == Region::FieldOfView {
+            return format!("field of view: the voxels every view sees{eroded}");
+        }
         format!(
-            "the channels' mean reference{} above {} of its maximum, holes filled{}",
+            "object mask: the channels' mean reference{} above {} of its maximum, holes filled{}",
             if self.smooth_mm > 0.0 {
                 format!(" smoothed (σ {} mm)", self.smooth_mm)
             } else {
                 String::new()
             },
             self.threshold,
-            if self.erode_mm > 0.0 {
-                format!(", eroded by {} mm", self.erode_mm)
-            } else {
-                String::new()
-            }
+            eroded
         )
     }
 
     /// Check every field; errors name it (`threshold`, `smooth_mm`, `erode_mm`).
     pub fn validate(&self) -> Result<()> {
+        if self.region == Region::FieldOfView {
+            let default = RoiSpec::default();
+            for (name, set) in [
+                ("threshold", self.threshold != default.threshold),
+                ("smooth_mm", self.smooth_mm != default.smooth_mm),
+            ] {
+                if set {
+                    return Err(Error::invalid(
+                        name,
+                        "applies to `region: object` only (the field of view is made from the \
+                         geometry, not the references)",
+                    ));
+                }
+            }
+        }
         if !(self.threshold > 0.0 && self.threshold < 1.0) {
             return Err(Error::invalid(
                 "threshold",
@@ -94,6 +135,12 @@ impl Roi {
         spec: &RoiSpec,
     ) -> Result<Roi> {
         spec.validate()?;
+        if spec.region != Region::Object {
+            return Err(Error::invalid(
+                "region",
+                "the mask from the references is `region: object`",
+            ));
+        }
         let (channels, nz, ny, nx) = references.dim();
         if channels == 0 || nz * ny * nx == 0 {
             return Err(Error::invalid("references", "are empty"));
@@ -141,6 +188,44 @@ impl Roi {
         Ok(roi)
     }
 
+    /// The voxels every view of `geometry` sees, each slice eroded by `spec.erode_mm`
+    /// (`spec.region` must be [`Region::FieldOfView`]). An empty region is an error naming
+    /// `region`.
+    pub fn from_field_of_view(geometry: &Geometry, spec: &RoiSpec) -> Result<Roi> {
+        spec.validate()?;
+        if spec.region != Region::FieldOfView {
+            return Err(Error::invalid(
+                "region",
+                "the mask from the geometry is `region: field_of_view`",
+            ));
+        }
+        let g = &geometry.volume;
+        let mut mask = crate::projector::seen_by_every_view(geometry)?;
+        for mut slice in mask.axis_iter_mut(Axis(0)) {
+            let eroded = erode(
+                &slice.to_owned(),
+                spec.erode_mm / g.dy,
+                spec.erode_mm / g.dx,
+            );
+            slice.assign(&eroded);
+        }
+        let roi = Roi {
+            mask,
+            spec: spec.clone(),
+        };
+        if roi.voxels() == 0 {
+            return Err(Error::invalid(
+                "region",
+                format!(
+                    "no voxel is seen by every view (erosion {} mm): the grid lies outside the \
+                     scan's complete field of view; score the object instead",
+                    spec.erode_mm
+                ),
+            ));
+        }
+        Ok(roi)
+    }
+
     /// Voxels inside the region.
     pub fn voxels(&self) -> usize {
         self.mask.iter().filter(|&&m| m).count()
@@ -149,7 +234,7 @@ impl Roi {
     /// One line for `metrics.json`: how the mask was made and how much of the grid it holds.
     pub fn describe(&self) -> String {
         format!(
-            "object mask: {}; {} of {} voxels ({:.1} %)",
+            "{}; {} of {} voxels ({:.1} %)",
             self.spec.describe(),
             self.voxels(),
             self.mask.len(),
@@ -374,5 +459,76 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("empty"), "{e}");
+    }
+
+    #[test]
+    fn the_field_of_view_region_comes_from_the_geometry_and_refuses_object_settings() {
+        use crate::geometry::{Beam, Detector, VolumeGrid};
+        // Parallel beam, 8 columns of 1 mm, views at 0 and 90° over a 16 mm grid of one slice:
+        // every view sees |x| ≤ 4 and |y| ≤ 4 mm, an 8 × 8 square.
+        let g = Geometry {
+            beam: Beam::Parallel,
+            dso: 100.0,
+            dsd: 200.0,
+            detector: Detector {
+                rows: 1,
+                cols: 8,
+                pitch_u: 1.0,
+                pitch_v: 1.0,
+                offset_u: 0.0,
+                offset_v: 0.0,
+            },
+            volume: VolumeGrid {
+                nz: 1,
+                ..VolumeGrid::cube(16, 1.0)
+            },
+            angles_rad: vec![0.0, std::f64::consts::FRAC_PI_2],
+            vectors: None,
+        };
+        let fov = RoiSpec {
+            region: Region::FieldOfView,
+            ..RoiSpec::default()
+        };
+        let roi = Roi::from_field_of_view(&g, &fov).unwrap();
+        assert_eq!(count(&roi), 64);
+        assert!(
+            roi.describe()
+                .starts_with("field of view: the voxels every view sees; 64 of 256")
+        );
+        // Eroded by 1.2 mm (the grid's border does not erode; the square's edge does): 6 × 6.
+        let eroded = RoiSpec {
+            erode_mm: 1.2,
+            ..fov.clone()
+        };
+        assert_eq!(count(&Roi::from_field_of_view(&g, &eroded).unwrap()), 36);
+        // Object settings are refused, naming the field; each constructor refuses the other region.
+        let e = Roi::from_field_of_view(
+            &g,
+            &RoiSpec {
+                threshold: 0.3,
+                ..fov.clone()
+            },
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("threshold") && e.to_string().contains("object"),
+            "{e}"
+        );
+        let e = Roi::from_field_of_view(&g, &RoiSpec::default()).unwrap_err();
+        assert!(e.to_string().contains("region"), "{e}");
+        let refs = tube(16, 4.0);
+        let e = Roi::from_references(refs.view(), 1.0, 1.0, &fov).unwrap_err();
+        assert!(e.to_string().contains("region"), "{e}");
+        // A grid no view sees whole: an error naming `region`.
+        let far = Geometry {
+            angles_rad: vec![0.0, std::f64::consts::FRAC_PI_2],
+            volume: VolumeGrid {
+                offset: [40.0, 40.0, 0.0],
+                ..g.volume.clone()
+            },
+            ..g.clone()
+        };
+        let e = Roi::from_field_of_view(&far, &fov).unwrap_err();
+        assert!(e.to_string().contains("region"), "{e}");
     }
 }

@@ -12,5 +12,5 @@ mod fov;
 mod joseph;
 
 pub use backproject::backproject_voxel;
-pub use fov::{check_fov, unseen_fraction};
+pub use fov::{check_fov, seen_by_every_view, unseen_fraction};
 pub use joseph::{Joseph, dot};

@@ -258,8 +258,8 @@ fn header(ctx: &Context) -> String {
         if let Some(r) = sc.roi.as_ref().or(e.roi.as_ref()) {
             let _ = writeln!(
                 md,
-                "Scene `{name}` is scored inside its object mask: {} (`roi`; each run's \
-                 `metrics.json` gives the mask's size).\n",
+                "Scene `{name}` is scored inside its {} (`roi`; each run's `metrics.json` \
+                 gives the mask's size).\n",
                 r.describe()
             );
         }

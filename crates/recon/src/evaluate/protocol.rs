@@ -13,7 +13,7 @@
 //!    as [`PSNR_CAP`] dB. LPIPS sees each slice clipped to [0, 1].
 //!
 //! 5. **Region of interest** (optional, `roi`): every metric above restricted to the object mask
-//!    of [`prism_domain::metrics::roi`] (PSNR over the mask's voxels, SSIM maps averaged over its
+//!    or the complete-data region of [`prism_domain::metrics::roi`] (PSNR over the mask's voxels, SSIM maps averaged over its
 //!    pixels); LPIPS still sees whole slices (those holding a mask pixel).
 //!
 //! The paper names neither the slice axes nor the resampling; both are recorded in
@@ -24,7 +24,8 @@ use crate::{Error, Result};
 use ndarray::{Array3, ArrayView2, ArrayView3, Axis};
 use prism_domain::metrics::ssim::RADIUS as SSIM_RADIUS;
 use prism_domain::metrics::{
-    Border, Roi, RoiSpec, SsimParams, psnr, score_json, ssim_2d, ssim_3d, ssim_map, window_axes,
+    Border, Region, Roi, RoiSpec, SsimParams, psnr, score_json, ssim_2d, ssim_3d, ssim_map,
+    window_axes,
 };
 use prism_domain::scene::Scene;
 use rayon::prelude::*;
@@ -144,9 +145,12 @@ impl Evaluation {
             return Ok(None);
         };
         let g = &scene.geometry.volume;
-        Roi::from_references(refs.view(), g.dy, g.dx, spec)
-            .map(Some)
-            .map_err(|e| Error::from(e).under("evaluation.roi"))
+        match spec.region {
+            Region::Object => Roi::from_references(refs.view(), g.dy, g.dx, spec),
+            Region::FieldOfView => Roi::from_field_of_view(&scene.geometry, spec),
+        }
+        .map(Some)
+        .map_err(|e| Error::from(e).under("evaluation.roi"))
     }
 
     /// This evaluation without LPIPS (a trial, a training curve).

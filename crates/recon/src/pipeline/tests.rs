@@ -577,6 +577,38 @@ fn a_finished_run_is_scored_again_inside_the_object() {
         assert!((b.scores.psnr - a.scores.psnr).abs() > 0.01);
     }
     assert_eq!(inside.wall_s, first.wall_s);
+    // Inside the region every view sees: the PSNR over the voxels the geometry says every view
+    // sees, by hand.
+    let fov = rescore(
+        &out,
+        &sc,
+        &self::inside(RoiSpec {
+            region: prism_domain::metrics::Region::FieldOfView,
+            ..RoiSpec::default()
+        }),
+    )
+    .unwrap();
+    assert!(
+        fov.protocol.roi.starts_with("field of view"),
+        "{}",
+        fov.protocol.roi
+    );
+    let seen = prism_domain::projector::seen_by_every_view(&sc.geometry).unwrap();
+    assert!(seen.iter().any(|&m| m));
+    for (c, b) in fov.channels.iter().enumerate() {
+        let vol: Array3<f32> =
+            ndarray_npy::read_npy(out.join(RunDir::volume_file(&b.label))).unwrap();
+        let want = crate::evaluate::protocol::psnr_in_by_hand(
+            vol.view(),
+            refs.index_axis(Axis(0), c),
+            &seen,
+        );
+        assert!(
+            (b.scores.psnr - want).abs() < 1e-4,
+            "{} vs {want}",
+            b.scores.psnr
+        );
+    }
     // Scored again under the whole grid, the first scores come back exactly.
     let back = rescore(&out, &sc, &Evaluation::default()).unwrap();
     assert_eq!(back, first);
@@ -605,7 +637,7 @@ fn a_region_of_interest_that_cannot_be_made_fails_before_the_reconstruction() {
     assert!(!out.exists(), "nothing is published");
 }
 
-/// The default evaluation, scored inside the object mask `spec` makes.
+/// The default evaluation, scored inside the region `spec` makes.
 fn inside(spec: prism_domain::metrics::RoiSpec) -> Evaluation {
     Evaluation {
         protocol: crate::evaluate::Protocol {
