@@ -305,7 +305,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/kvp-v52-interleaved-s0  (64³, 52 views, 4 channels)")
             && t.contains("scenes/head-v39-shipped-s0  (64³, 39 views, 3 channels)")
             && t.contains("scenes/pcct-v13-i0-3e3-s0  (64³, 13 views, 4 channels)")
-            && t.contains("100 run cells:")
+            && t.contains("112 run cells:")
             && t.contains("runs/head-v39-interleaved-s0/r2gs  to run\n")
             && t.contains("runs/head-v39-shipped-s0/4dsg-r2rates-res  to run\n")
             && t.contains("runs/pcct-v13-i0-1e4-s0/tnv  to run\n")
