@@ -338,10 +338,11 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     );
     let t = dry_run(&repo.join("configs/suites/real-studies.yaml"), &out);
     assert!(
-        t.contains("4 scene cells:")
+        t.contains("6 scene cells:")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("42 run cells:")
+            && t.contains("46 run cells:")
             && t.contains("runs/bird-dtv-v60-shipped-s1/4dsg-dtv512x20-60k-w-r0  to run\n")
+            && t.contains("runs/bird-dtv-v60-shipped-s3/4dsg-dtv512x20-60k-w  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-tv512x10  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w-r0  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w  to run\n")
