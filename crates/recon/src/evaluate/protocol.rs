@@ -13,8 +13,9 @@
 //!    as [`PSNR_CAP`] dB. LPIPS sees each slice clipped to [0, 1].
 //!
 //! 5. **Region of interest** (optional, `roi`): every metric above restricted to the object mask
-//!    or the complete-data region of [`prism_domain::metrics::roi`] (PSNR over the mask's voxels, SSIM maps averaged over its
-//!    pixels); LPIPS still sees whole slices (those holding a mask pixel).
+//!    or the complete-data region of [`prism_domain::metrics::roi`] (PSNR over the mask's voxels,
+//!    SSIM maps averaged over its pixels); LPIPS still sees whole slices (those holding a mask
+//!    pixel).
 //!
 //! The paper names neither the slice axes nor the resampling; both are recorded in
 //! `metrics.json` (`protocol`), so a table states what it measured.
