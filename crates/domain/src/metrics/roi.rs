@@ -171,21 +171,13 @@ impl Roi {
             let object = erode(&object, spec.erode_mm / dy, spec.erode_mm / dx);
             mask.index_axis_mut(Axis(0), z).assign(&object);
         }
-        let roi = Roi {
-            mask,
-            spec: spec.clone(),
-        };
-        if roi.voxels() == 0 {
-            return Err(Error::invalid(
-                "threshold",
-                format!(
-                    "the region of interest is empty (threshold {}, erosion {} mm): lower \
-                     the threshold or the erosion",
-                    spec.threshold, spec.erode_mm
-                ),
-            ));
-        }
-        Ok(roi)
+        Roi::non_empty(mask, spec, "threshold", || {
+            format!(
+                "the region of interest is empty (threshold {}, erosion {} mm): lower the \
+                 threshold or the erosion",
+                spec.threshold, spec.erode_mm
+            )
+        })
     }
 
     /// The voxels every view of `geometry` sees, each slice eroded by `spec.erode_mm`
@@ -209,19 +201,29 @@ impl Roi {
             );
             slice.assign(&eroded);
         }
+        Roi::non_empty(mask, spec, "region", || {
+            format!(
+                "no voxel is seen by every view (erosion {} mm): the grid lies outside the \
+                 scan's complete field of view; score the object instead",
+                spec.erode_mm
+            )
+        })
+    }
+
+    /// The region of `mask` under `spec`, or an error naming `field` with `why` when it holds
+    /// no voxel.
+    fn non_empty(
+        mask: Array3<bool>,
+        spec: &RoiSpec,
+        field: &str,
+        why: impl FnOnce() -> String,
+    ) -> Result<Roi> {
         let roi = Roi {
             mask,
             spec: spec.clone(),
         };
         if roi.voxels() == 0 {
-            return Err(Error::invalid(
-                "region",
-                format!(
-                    "no voxel is seen by every view (erosion {} mm): the grid lies outside the \
-                     scan's complete field of view; score the object instead",
-                    spec.erode_mm
-                ),
-            ));
+            return Err(Error::invalid(field, why()));
         }
         Ok(roi)
     }
