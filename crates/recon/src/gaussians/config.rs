@@ -276,6 +276,10 @@ pub struct LossConfig {
     /// configs written before the option existed still describe their runs.
     #[serde(skip_serializing_if = "DataWeighting::is_none")]
     pub weighting: DataWeighting,
+    /// The data term's norm over a projection's residuals: `l1` (upstream, default) or `rms`
+    /// ([`DataNorm`]). Left out of a resolved config when `l1`.
+    #[serde(skip_serializing_if = "DataNorm::is_l1")]
+    pub data: DataNorm,
     /// With several channels in one model (4D-SG's stage 2), each channel's TV guided by the
     /// channels' mean (YAML `loss.tv_guide: {eta: …}`): directional TV
     /// ([`directional_total_variation`]), which spares a channel's gradient along the mean's
@@ -320,6 +324,26 @@ pub enum DataWeighting {
     Counts,
 }
 
+/// The data term's norm over one projection image's residuals (YAML `loss.data`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DataNorm {
+    /// The mean absolute residual (R²-Gaussian's): a Laplace likelihood.
+    #[default]
+    L1,
+    /// The root-mean-square residual of each channel's image, averaged over the images: the
+    /// least-squares fit a Gaussian noise model asks for, each image weighted against the
+    /// priors by its own residual level (a noisier channel is regularised more). With
+    /// `weighting: counts` each residual is scaled by its weight first (weighted least squares).
+    Rms,
+}
+
+impl DataNorm {
+    fn is_l1(&self) -> bool {
+        *self == DataNorm::L1
+    }
+}
+
 impl DataWeighting {
     fn is_none(&self) -> bool {
         *self == DataWeighting::None
@@ -333,6 +357,7 @@ impl Default for LossConfig {
             lambda_tv: 0.05,
             tv_patch: 32,
             weighting: DataWeighting::None,
+            data: DataNorm::L1,
             tv_guide: None,
             tv_channel_weight: BTreeMap::new(),
         }

@@ -5,7 +5,7 @@ use super::tests::scene;
 use super::{RunDir, RunOptions, run};
 use crate::device::cpu_device;
 use crate::evaluate::{Evaluation, Metrics};
-use crate::gaussians::config::{DataWeighting, DensifyConfig, InitConfig, TvGuide};
+use crate::gaussians::config::{DataNorm, DataWeighting, DensifyConfig, InitConfig, TvGuide};
 use crate::gaussians::host::{self, HostGaussians, ScaleBounds, inverse_softplus};
 use crate::gaussians::io::{ModelInfo, load_model, save_model, write_ply};
 use crate::gaussians::train::densify::densify_and_prune;
@@ -114,11 +114,11 @@ pub(super) fn losses(dir: &std::path::Path) -> Vec<(String, usize, f64, usize)> 
         .collect()
 }
 
-/// `loss.weighting: counts` reaches every stage of 4D-SG (an interleaved scene: the weights
-/// follow each view's measured channels): the logged losses differ from the unweighted run's
-/// from the first record on, and the weighted run scores.
+/// `loss.weighting: counts` and `loss.data: rms` each reach every stage of 4D-SG (an
+/// interleaved scene: the weights follow each view's measured channels): the logged losses
+/// differ from the plain run's from the first record on, and the run scores.
 #[test]
-fn count_weighting_reaches_both_stages_of_4dsg() {
+fn data_term_options_reach_both_stages_of_4dsg() {
     let scene = scene();
     let dev = cpu_device();
     let mut plain = tiny(FourDsgMethod::Full);
@@ -127,34 +127,40 @@ fn count_weighting_reaches_both_stages_of_4dsg() {
     plain.spectral.stage2.iterations = 20;
     let mut weighted = plain.clone();
     weighted.geometry.loss.weighting = DataWeighting::Counts;
-    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let mut squares = plain.clone();
+    squares.geometry.loss.data = DataNorm::Rms;
+    let a = tempfile::tempdir().unwrap();
     run_on(&plain, &scene, a.path(), &dev).unwrap();
-    let m = run_on(&weighted, &scene, b.path(), &dev).unwrap();
-    let (la, lb) = (losses(a.path()), losses(b.path()));
+    let la = losses(a.path());
     let stages = |l: &[(String, usize, f64, usize)]| {
         let mut s: Vec<String> = l.iter().map(|r| r.0.clone()).collect();
         s.dedup();
         s
     };
-    assert_eq!(stages(&la), stages(&lb));
     assert!(stages(&la).len() >= 2, "{:?}", stages(&la));
-    for stage in stages(&la) {
-        let first = |l: &[(String, usize, f64, usize)]| {
-            l.iter().find(|r| r.0 == stage).map(|r| r.2).unwrap()
-        };
-        assert_ne!(
-            first(&la),
-            first(&lb),
-            "stage {stage}: weighting changed nothing"
+    for (option, config) in [("counts", weighted), ("rms", squares)] {
+        let b = tempfile::tempdir().unwrap();
+        let m = run_on(&config, &scene, b.path(), &dev).unwrap();
+        let lb = losses(b.path());
+        assert_eq!(stages(&la), stages(&lb), "{option}");
+        for stage in stages(&la) {
+            let first = |l: &[(String, usize, f64, usize)]| {
+                l.iter().find(|r| r.0 == stage).map(|r| r.2).unwrap()
+            };
+            assert_ne!(
+                first(&la),
+                first(&lb),
+                "{option}, stage {stage}: the option changed nothing"
+            );
+        }
+        assert!(
+            m.channels
+                .iter()
+                .all(|c| c.scores.psnr.is_finite() && c.scores.psnr > 15.0),
+            "{option}: {:?}",
+            m.channels
         );
     }
-    assert!(
-        m.channels
-            .iter()
-            .all(|c| c.scores.psnr.is_finite() && c.scores.psnr > 15.0),
-        "{:?}",
-        m.channels
-    );
 }
 
 /// `loss.tv_channel_weight` weighs one channel's TV: R²-Gaussian with λ_TV = 0.05 and channel

@@ -19,6 +19,21 @@ pub fn weighted_l1(pred: Tensor<4>, target: Tensor<4>, weights: Tensor<4>) -> Te
     ((pred - target).abs() * weights).mean()
 }
 
+/// The root-mean-square residual of each image of `[N, C, H, W]` (each pixel's residual times
+/// `weights`, same shape, when given), averaged over the `N·C` images: least squares' minimiser
+/// for one image, its weight against the other loss terms set by the image's own residual level
+/// (the gradient is `r / (H·W·rms)`, of L1's size). A 10⁻¹² floor under the mean square keeps the
+/// gradient finite at a perfect fit.
+pub fn image_rms(pred: Tensor<4>, target: Tensor<4>, weights: Option<Tensor<4>>) -> Tensor<1> {
+    let mut r = pred - target;
+    if let Some(w) = weights {
+        r = r * w;
+    }
+    let [n, c, h, w] = r.dims();
+    let mean_square = (r.clone() * r).reshape([n * c, h * w]).mean_dim(1);
+    (mean_square + 1e-12).sqrt().mean()
+}
+
 /// The photon-statistics weights of every view of `sup` ([`DataWeighting::Counts`]): `e^{−b/2}`
 /// of each pixel's line integral `b` (the normalised target divided by `factor`, the world's
 /// projection factor), normalised to mean 1 over each channel's pixels in all views; a pixel
@@ -330,6 +345,42 @@ mod tests {
                 g[i]
             );
         }
+    }
+
+    /// Each image's root-mean-square residual, averaged over the images; its gradient is
+    /// `r / (H·W·rms)` per image (L1's size), the weights scale each residual, and a perfect fit
+    /// has a finite (zero) gradient.
+    #[test]
+    fn image_rms_is_each_images_rms_residual_averaged() {
+        let ad = device().autodiff();
+        // Two channels of 1 × 4 pixels: residuals (3, 0, 0, 4) → rms 2.5; (1, 1, 1, 1) → 1.
+        let target = Tensor::<4>::from_data(TensorData::new(vec![0.0f32; 8], [1, 2, 1, 4]), &ad);
+        let r = vec![3.0f32, 0.0, 0.0, -4.0, 1.0, -1.0, 1.0, 1.0];
+        let pred =
+            Tensor::<4>::from_data(TensorData::new(r.clone(), [1, 2, 1, 4]), &ad).require_grad();
+        let l = image_rms(pred.clone(), target.clone(), None);
+        let v: f32 = l.clone().into_scalar();
+        assert!((v - 1.75).abs() < 1e-6, "{v}");
+        let g = host_values(&pred.grad(&l.backward()).unwrap());
+        // ∂/∂r of ½·(rms₀ + rms₁): r / (2·4·rms) per image.
+        for (i, (&gi, &ri)) in g.iter().zip(&r).enumerate() {
+            let rms = if i < 4 { 2.5 } else { 1.0 };
+            let want = ri / (2.0 * 4.0 * rms);
+            assert!((gi - want).abs() < 1e-6, "pixel {i}: {gi} vs {want}");
+        }
+        // Weights 2 on the first image double its residuals (rms 5).
+        let w = vec![2.0f32, 2.0, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0];
+        let w = Tensor::<4>::from_data(TensorData::new(w, [1, 2, 1, 4]), &ad);
+        let p = Tensor::<4>::from_data(TensorData::new(r, [1, 2, 1, 4]), &ad);
+        let v: f32 = image_rms(p, target.clone(), Some(w)).into_scalar();
+        assert!((v - 3.0).abs() < 1e-6, "{v}");
+        // A perfect fit: the loss is the floor's 10⁻⁶ and the gradient zero, not NaN.
+        let exact = target.clone().require_grad();
+        let l = image_rms(exact.clone(), target, None);
+        let v: f32 = l.clone().into_scalar();
+        assert!(v.abs() < 2e-6, "{v}");
+        let g = host_values(&exact.grad(&l.backward()).unwrap());
+        assert!(g.iter().all(|x| *x == 0.0), "{g:?}");
     }
 
     /// The fused op (CPU backends) and the composed form (wgpu) agree in value and gradient

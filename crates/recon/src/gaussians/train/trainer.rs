@@ -18,11 +18,12 @@ use super::densify::{DensifyCounts, densify_and_prune};
 use super::draw::draw_views;
 use super::head::{DensityNet, common_density};
 use super::loss::{
-    SsimWindow, count_weights, directional_total_variation, l1, total_variation, weighted_l1,
+    SsimWindow, count_weights, directional_total_variation, image_rms, l1, total_variation,
+    weighted_l1,
 };
 use super::settings::{ChannelMap, Stage};
 use crate::gaussians::GaussianModel;
-use crate::gaussians::config::{DataWeighting, Rates};
+use crate::gaussians::config::{DataNorm, DataWeighting, Rates};
 use crate::gaussians::model::softplus;
 use crate::record::log::LossTerms;
 use crate::{Error, Result};
@@ -308,9 +309,11 @@ impl<'a> Trainer<'a> {
             if let Some(c) = &view.columns {
                 img = img.select(1, c.index.clone());
             }
-            l_1.push(match &self.weights {
-                Some(w) => weighted_l1(img.clone(), view.target.clone(), w[index].clone()),
-                None => l1(img.clone(), view.target.clone()),
+            let weights = self.weights.as_ref().map(|w| w[index].clone());
+            l_1.push(match (stage.loss.data, weights) {
+                (DataNorm::L1, Some(w)) => weighted_l1(img.clone(), view.target.clone(), w),
+                (DataNorm::L1, None) => l1(img.clone(), view.target.clone()),
+                (DataNorm::Rms, w) => image_rms(img.clone(), view.target.clone(), w),
             });
             if stage.loss.lambda_dssim > 0.0 {
                 dssim.push(self.window.ssim(img, view.target.clone()).neg() + 1.0);
