@@ -294,7 +294,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     );
     // The spectral suite: six interleaved scenes at 13 angles per channel (39 for 3 channels, 52
     // for 4 tube voltages, 104 for the abdomen's 8), their every-channel reference at the same
-    // angles, and two low-dose levels (with the Gaussian methods' noise-aware data term beside
+    // angles, and two low-dose levels (with the Gaussian methods' other data terms beside
     // their own); the joint classic baseline (TNV) beside SART; 4D-SG with R²-Gaussian's rates,
     // and the basis head on the three scenes whose channels it can form.
     let t = dry_run(&repo.join("configs/suites/spectral.yaml"), &out);
@@ -305,11 +305,12 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/kvp-v52-interleaved-s0  (64³, 52 views, 4 channels)")
             && t.contains("scenes/head-v39-shipped-s0  (64³, 39 views, 3 channels)")
             && t.contains("scenes/pcct-v13-i0-3e3-s0  (64³, 13 views, 4 channels)")
-            && t.contains("112 run cells:")
+            && t.contains("120 run cells:")
             && t.contains("runs/head-v39-interleaved-s0/r2gs  to run\n")
             && t.contains("runs/head-v39-shipped-s0/4dsg-r2rates-res  to run\n")
             && t.contains("runs/pcct-v13-i0-1e4-s0/tnv  to run\n")
             && t.contains("runs/pcct-v13-i0-3e3-s0/4dsg-counts  to run\n")
+            && t.contains("runs/head-v13-i0-1e4-s0/r2gs-wls  to run\n")
             && t.contains("runs/kvp-v52-shipped-s0/4dsg-basis-r2rates  to run\n"),
         "{t}"
     );
@@ -340,9 +341,10 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     assert!(
         t.contains("6 scene cells:")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("46 run cells:")
+            && t.contains("55 run cells:")
             && t.contains("runs/bird-dtv-v60-shipped-s1/4dsg-dtv512x20-60k-w-r0  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s3/4dsg-dtv512x20-60k-w  to run\n")
+            && t.contains("runs/bird-dtv-v60-shipped-s2/4dsg-dtv512x20-60k-w-r0-rms  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-tv512x10  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w-r0  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w  to run\n")
