@@ -339,12 +339,14 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     );
     let t = dry_run(&repo.join("configs/suites/real-studies.yaml"), &out);
     assert!(
-        t.contains("6 scene cells:")
+        t.contains("9 scene cells:")
+            && t.contains("scenes/bird-v30-shipped-s0  (512×512×1, 30 views, 3 channels)")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("55 run cells:")
+            && t.contains("67 run cells:")
             && t.contains("runs/bird-dtv-v60-shipped-s1/4dsg-dtv512x20-60k-w-r0  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s3/4dsg-dtv512x20-60k-w  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s2/4dsg-dtv512x20-60k-w-r0-rms  to run\n")
+            && t.contains("runs/bird-v120-shipped-s0/4dsg-rms  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-tv512x10  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w-r0  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s0/4dsg-dtv512x20-60k-w  to run\n")
