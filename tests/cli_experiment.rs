@@ -342,7 +342,7 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
         t.contains("9 scene cells:")
             && t.contains("scenes/bird-v30-shipped-s0  (512×512×1, 30 views, 3 channels)")
             && t.contains("scenes/tooth-v23-shipped-s0  (512×512×2, 23 views, 1 channels)")
-            && t.contains("67 run cells:")
+            && t.contains("70 run cells:")
             && t.contains("runs/bird-dtv-v60-shipped-s1/4dsg-dtv512x20-60k-w-r0  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s3/4dsg-dtv512x20-60k-w  to run\n")
             && t.contains("runs/bird-dtv-v60-shipped-s2/4dsg-dtv512x20-60k-w-r0-rms  to run\n")
