@@ -126,6 +126,16 @@ pub struct Roi {
 }
 
 impl Roi {
+    /// The region `spec.region` names for a scene with `references` (`[channel][z][y][x]`) on
+    /// `geometry`: the object mask of the references, or the voxels every view sees.
+    pub fn new(references: ArrayView4<f32>, geometry: &Geometry, spec: &RoiSpec) -> Result<Roi> {
+        let g = &geometry.volume;
+        match spec.region {
+            Region::Object => Roi::from_references(references, g.dy, g.dx, spec),
+            Region::FieldOfView => Roi::from_field_of_view(geometry, spec),
+        }
+    }
+
     /// The mask of `references` (`[channel][z][y][x]`, on voxels of in-plane size `dy`, `dx`
     /// mm) under `spec` (module docs). An empty mask is an error naming `threshold`.
     pub fn from_references(

@@ -25,8 +25,7 @@ use crate::{Error, Result};
 use ndarray::{Array3, ArrayView2, ArrayView3, Axis};
 use prism_domain::metrics::ssim::RADIUS as SSIM_RADIUS;
 use prism_domain::metrics::{
-    Border, Region, Roi, RoiSpec, SsimParams, psnr, score_json, ssim_2d, ssim_3d, ssim_map,
-    window_axes,
+    Border, Roi, RoiSpec, SsimParams, psnr, score_json, ssim_2d, ssim_3d, ssim_map, window_axes,
 };
 use prism_domain::scene::Scene;
 use rayon::prelude::*;
@@ -145,13 +144,9 @@ impl Evaluation {
         let (Some(spec), Some(refs)) = (&self.protocol.roi, &scene.references) else {
             return Ok(None);
         };
-        let g = &scene.geometry.volume;
-        match spec.region {
-            Region::Object => Roi::from_references(refs.view(), g.dy, g.dx, spec),
-            Region::FieldOfView => Roi::from_field_of_view(&scene.geometry, spec),
-        }
-        .map(Some)
-        .map_err(|e| Error::from(e).under("evaluation.roi"))
+        Roi::new(refs.view(), &scene.geometry, spec)
+            .map(Some)
+            .map_err(|e| Error::from(e).under("evaluation.roi"))
     }
 
     /// This evaluation without LPIPS (a trial, a training curve).
