@@ -9,6 +9,7 @@
 
 pub mod checkpoints;
 pub mod data;
+pub mod data_term;
 pub mod densify;
 mod draw;
 pub mod evaluator;

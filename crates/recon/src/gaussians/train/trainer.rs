@@ -14,13 +14,11 @@
 
 use super::Timing;
 use super::data::Supervision;
+use super::data_term::{count_weights, image_rms, l1, weighted_l1};
 use super::densify::{DensifyCounts, densify_and_prune};
 use super::draw::draw_views;
 use super::head::{DensityNet, common_density};
-use super::loss::{
-    SsimWindow, count_weights, directional_total_variation, image_rms, l1, total_variation,
-    weighted_l1,
-};
+use super::loss::{SsimWindow, directional_total_variation, total_variation};
 use super::settings::{ChannelMap, Stage};
 use crate::gaussians::GaussianModel;
 use crate::gaussians::config::{DataNorm, DataWeighting, Rates};
