@@ -224,8 +224,8 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
 }
 
 /// The shipped suites plan from the repository alone: the CPU suite at 13 views of 64³ (its noise
-/// study sharing the table's head cells, its rates study the table's 4D-SG cells; 20 and 50 views
-/// for the curve-model study), its NAF companion, the paper suite at 50 views of 256³, the real-data
+/// study sharing the table's head cells, its rates study the table's 4D-SG cells, its budget
+/// studies adding 2× and 4× budgets; 20 and 50 views for the curve-model study), its NAF companion, the paper suite at 50 views of 256³, the real-data
 /// suite's imported scans; `--study`
 /// marks the other cells as not selected, and an unknown study is refused with the known ones.
 /// The plan `prism experiment <suite> -o <out> --dry-run` prints (it must succeed).
@@ -247,8 +247,10 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
             && t.contains("scenes/head-v13-shipped-s0  (64³, 13 views, 3 channels)  to run\n")
             && t.contains("scenes/ph8-v13-shipped-s0  (64³, 13 views, 8 channels)")
             && t.contains("scenes/head-v50-shipped-s0  (64³, 50 views, 3 channels)")
-            && t.contains("59 run cells:")
+            && t.contains("65 run cells:")
             && t.contains("runs/abdomen-v13-shipped-s0/4dsg-r2rates  to run\n")
+            && t.contains("runs/head-v13-shipped-s0/r2gs-x2  to run\n")
+            && t.contains("runs/chest-v13-shipped-s0/4dsg-x4  to run\n")
             && t.contains("runs/head-v13-i0-1e4-s0/4dsg  to run\n")
             && t.contains("runs/ph8-v13-shipped-s0/4dsg-quarter  to run\n")
             && !t.contains("naf"),
@@ -296,16 +298,20 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     // for 4 tube voltages, 104 for the abdomen's 8), their every-channel reference at the same
     // angles, and two low-dose levels (with the Gaussian methods' other data terms beside
     // their own); the joint classic baseline (TNV) beside SART; 4D-SG with R²-Gaussian's rates,
-    // and the basis head on the three scenes whose channels it can form.
+    // and the basis head on the three scenes whose channels it can form (with a short stage 1 on
+    // kVp); mixed kVp interleaved at two more seeds.
     let t = dry_run(&repo.join("configs/suites/spectral.yaml"), &out);
     assert!(
-        t.contains("16 scene cells:")
+        t.contains("20 scene cells:")
+            && t.contains("scenes/mixed-v65-interleaved-s2  (64³, 65 views, 5 channels)")
             && t.contains("scenes/chest-v39-interleaved-s0  (64³, 39 views, 3 channels)")
             && t.contains("scenes/abdomen-v104-interleaved-s0  (64³, 104 views, 8 channels)")
             && t.contains("scenes/kvp-v52-interleaved-s0  (64³, 52 views, 4 channels)")
             && t.contains("scenes/head-v39-shipped-s0  (64³, 39 views, 3 channels)")
             && t.contains("scenes/pcct-v13-i0-3e3-s0  (64³, 13 views, 4 channels)")
-            && t.contains("120 run cells:")
+            && t.contains("138 run cells:")
+            && t.contains("runs/mixed-v65-shipped-s1/4dsg-r2rates-res-s1  to run\n")
+            && t.contains("runs/kvp-v52-interleaved-s0/4dsg-basis-r2rates-s1  to run\n")
             && t.contains("runs/head-v39-interleaved-s0/r2gs  to run\n")
             && t.contains("runs/head-v39-shipped-s0/4dsg-r2rates-res  to run\n")
             && t.contains("runs/pcct-v13-i0-1e4-s0/tnv  to run\n")
