@@ -225,8 +225,8 @@ fn a_suite_runs_every_study_resumes_and_refuses_changed_cells() {
 
 /// The shipped suites plan from the repository alone: the CPU suite at 13 views of 64³ (its noise
 /// study sharing the table's head cells, its rates study the table's 4D-SG cells, its budget
-/// studies adding 2× and 4× budgets; 20 and 50 views for the curve-model study), its NAF companion, the paper suite at 50 views of 256³, the real-data
-/// suite's imported scans; `--study`
+/// studies adding 2× and 4× budgets; 20 and 50 views for the curve-model study), its NAF
+/// companion, the paper suite at 50 views of 256³, the real-data suite's imported scans; `--study`
 /// marks the other cells as not selected, and an unknown study is refused with the known ones.
 /// The plan `prism experiment <suite> -o <out> --dry-run` prints (it must succeed).
 fn dry_run(suite: &Path, out: &Path) -> String {
@@ -299,7 +299,8 @@ fn the_shipped_suites_plan_in_the_papers_regime() {
     // angles, and two low-dose levels (with the Gaussian methods' other data terms beside
     // their own); the joint classic baseline (TNV) beside SART; 4D-SG with R²-Gaussian's rates,
     // and the basis head on the three scenes whose channels it can form (with a short stage 1 on
-    // kVp); mixed kVp interleaved at two more seeds.
+    // all six, two materials on mixed kVp); mixed kVp interleaved at two more seeds; 4D-SG at 2×
+    // its budget at low dose.
     let t = dry_run(&repo.join("configs/suites/spectral.yaml"), &out);
     assert!(
         t.contains("20 scene cells:")
